@@ -1,0 +1,135 @@
+"""Command line: thin typer commands that parse options, call the library and print.
+
+Exit codes: 0 success, 1 bad input (one line naming file, line and problem),
+2 bad usage. ``--debug`` shows the traceback of an error.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, NoReturn
+
+import typer
+
+from ilcnc import __version__
+from ilcnc.errors import IlcncError
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="ilcnc: make CNC machines cut what was programmed (iterative learning control on G01 end points).",
+    pretty_exceptions_enable=False,
+)
+
+_state = {"debug": False}
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"ilcnc {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version.")] = False,
+    debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks of errors.")] = False,
+) -> None:
+    _state["debug"] = debug
+
+
+def _fail(exc: BaseException) -> NoReturn:
+    if _state["debug"]:
+        raise exc
+    msg = exc.format() if hasattr(exc, "format") and isinstance(exc, IlcncError) else str(exc)
+    typer.echo(f"error: {msg}", err=True)
+    raise typer.Exit(1)
+
+
+def _console():
+    from rich.console import Console
+
+    return Console()
+
+
+@app.command()
+def inspect(
+    program: Annotated[Path, typer.Argument(help="Part program (.nc/.ngc/.tap/.gcode or Heidenhain .h).")],
+    moves: Annotated[Path | None, typer.Option("--moves", help="Write the command table k,line,x,y,z,f (mm, mm/min).")] = None,
+    profile: Annotated[Path | None, typer.Option("--profile", help="Machine profile YAML (units, rapid speed).")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Dialect, units, lines, G01 commands, extents, path length and cycle time of a program."""
+    from ilcnc import inspect as inspect_mod
+
+    try:
+        report = inspect_mod.inspect_program(program, profile_path=profile, moves_out=moves)
+    except IlcncError as exc:
+        _fail(exc)
+    if as_json:
+        typer.echo(json.dumps(report.to_json()))
+        return
+    inspect_mod.print_report(report, _console())
+
+
+@app.command()
+def export(
+    program: Annotated[Path, typer.Argument(help="Part program to write out.")],
+    out: Annotated[Path, typer.Option("--out", help="Output file; its suffix picks the dialect (.nc .ngc .tap .gcode .h).")],
+    corrections: Annotated[Path | None, typer.Option("--corrections", help="Corrections CSV k,dx,dy,dz (mm).")] = None,
+    profile: Annotated[Path | None, typer.Option("--profile", help="Machine profile (resolution, default units).")] = None,
+    decimals: Annotated[int | None, typer.Option("--decimals", min=0, max=8, help="Least decimals of rewritten numbers.")] = None,
+) -> None:
+    """Write the program (optionally corrected) in the dialect of OUT's suffix.
+
+    With no corrections and the same dialect the output is byte-identical to the input.
+    """
+    from ilcnc import export as export_mod
+
+    try:
+        result = export_mod.export_program(program, out, corrections_path=corrections, profile_path=profile,
+                                           min_decimals=decimals)
+    except IlcncError as exc:
+        _fail(exc)
+    typer.echo(f"wrote {result.path} ({result.mode}; {result.changed_commands} commands corrected, "
+               f"{result.edits} numbers rewritten)")
+
+
+def _not_implemented(name: str) -> NoReturn:
+    typer.echo(f"error: ilcnc {name}: not implemented yet", err=True)
+    raise typer.Exit(1)
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def simulate() -> None:
+    """Virtual CNC run (not implemented yet)."""
+    _not_implemented("simulate")
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def learn() -> None:
+    """The learning loop (not implemented yet)."""
+    _not_implemented("learn")
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def identify() -> None:
+    """Fit a drive model to a step response (not implemented yet)."""
+    _not_implemented("identify")
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def tune() -> None:
+    """Design learning gains (not implemented yet)."""
+    _not_implemented("tune")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    try:
+        app()
+    except KeyboardInterrupt:
+        sys.stderr.write("interrupted\n")
+        sys.exit(130)

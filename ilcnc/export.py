@@ -1,0 +1,124 @@
+"""``ilcnc export``: write a program, corrected or converted, never over its input."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ilcnc.corrections import read_corrections
+from ilcnc.errors import InputError
+from ilcnc.fileio import read_bytes, write_atomic
+from ilcnc.program import GCODE_SUFFIXES, HEIDENHAIN_SUFFIXES, read_program
+from ilcnc.program.model import MM_PER_INCH
+from ilcnc.program.rewrite import apply_corrections
+
+__all__ = ["ExportResult", "export_program", "output_family"]
+
+
+@dataclass(frozen=True, slots=True)
+class ExportResult:
+    """What ``export`` wrote."""
+
+    path: Path
+    mode: str  # "copy", "rewrite" or "convert"
+    changed_commands: int
+    edits: int
+
+
+def output_family(path: Path) -> str:
+    """``gcode`` or ``heidenhain`` from the output suffix."""
+    suffix = path.suffix.lower()
+    if suffix in HEIDENHAIN_SUFFIXES:
+        return "heidenhain"
+    if suffix in GCODE_SUFFIXES:
+        return "gcode"
+    raise InputError(path, None, f"unknown output suffix {suffix!r}; use .nc, .ngc, .tap, .gcode or .h")
+
+
+def _min_decimals(units: str, profile_path: Path | None, override: int | None) -> int:
+    if override is not None:
+        return override
+    if profile_path is not None:
+        from ilcnc.profile import load_profile
+
+        return int(load_profile(profile_path).min_decimals(units))
+    return 4 if units == "inch" else 3
+
+
+def export_program(
+    src: Path,
+    out: Path,
+    *,
+    corrections_path: Path | None = None,
+    profile_path: Path | None = None,
+    min_decimals: int | None = None,
+) -> ExportResult:
+    """Write ``src`` to ``out`` in the dialect of ``out``'s suffix, applying corrections.
+
+    Raises
+    ------
+    InputError
+        Bad program, bad corrections, unknown suffix, or ``out`` is the input.
+    """
+    family = output_family(out)
+    default_units = "mm"
+    if profile_path is not None:
+        from ilcnc.profile import load_profile
+
+        default_units = load_profile(profile_path).machine.units
+    data = read_bytes(src)
+    program = read_program(src, default_units=default_units, data=data)
+    same = (program.dialect == "heidenhain") == (family == "heidenhain")
+    protect = (src,) + ((corrections_path,) if corrections_path else ())
+    corr = None
+    if corrections_path is not None:
+        program.require_complete()
+        corr = read_corrections(corrections_path, program.n_commands)
+    if same:
+        if corr is None:
+            write_atomic(out, program.data, protect=protect)
+            return ExportResult(out, "copy", 0, 0)
+        dec = _min_decimals(program.units, profile_path, min_decimals)
+        text, edits = apply_corrections(program, corr, min_decimals=dec)
+        write_atomic(out, text.encode("latin-1"), protect=protect)
+        return ExportResult(out, "rewrite", int(np.count_nonzero(np.any(corr != 0, axis=1))), len(edits))
+    program.require_complete()
+    moves = program.moves
+    if corr is not None and np.any(corr):
+        moves = _corrected_moves(program, corr)
+    dec = _min_decimals(program.units, profile_path, min_decimals)
+    if family == "heidenhain":
+        from ilcnc.program.heidenhain import write_klartext
+
+        text = write_klartext(moves, name=_pgm_name(out), units=program.units, decimals=dec)
+    else:
+        from ilcnc.program.gcode import write_gcode
+
+        text = write_gcode(moves, units=program.units, decimals=dec, name=program.path.name)
+    write_atomic(out, text.encode("latin-1", errors="replace"), protect=protect)
+    changed = 0 if corr is None else int(np.count_nonzero(np.any(corr != 0, axis=1)))
+    return ExportResult(out, "convert", changed, 0)
+
+
+def _pgm_name(out: Path) -> str:
+    return "".join(c for c in out.stem if c.isalnum() or c in "_-")[:24] or "ILCNC"
+
+
+def _corrected_moves(program, corr):
+    """A copy of the move table with corrected command end points (and the following starts)."""
+    import copy
+
+    mv = copy.copy(program.moves)
+    end = mv.end_mm.copy()
+    idx = program.command_moves
+    end[idx] += corr
+    start = mv.start_mm.copy()
+    start[1:] = end[:-1]
+    mv.end_mm = end
+    mv.start_mm = start
+    return mv
+
+
+_ = MM_PER_INCH

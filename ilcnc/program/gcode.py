@@ -1,0 +1,859 @@
+"""ISO / RS-274 G-code reader (LinuxCNC, Fanuc and grbl dialects).
+
+Two layers, as in pygcode: a *lexer* that cuts every line into words,
+comments and parameter assignments with exact character spans, and an
+*interpreter* that runs the blocks through the modal machine state (units,
+distance modes, plane, offsets) and records every motion in a
+:class:`~ilcnc.program.model.MoveTable`.
+
+Every line of a file is lexed, so a syntax error anywhere is reported with
+its line. The interpreter stops at the first construct it does not model
+(O-word control flow, canned cycles, splines, polar coordinates, ...) and
+records it in :attr:`Program.unsupported`: the program can still be written
+back byte for byte, but its motion is refused by
+:meth:`Program.require_complete` with that line, never misread.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ilcnc.errors import ProgramError
+from ilcnc.program.expr import ExprError, Parameters, read_param_ref, read_value
+from ilcnc.program.model import (
+    FLAG_CUTTER_COMP,
+    FLAG_HOME,
+    FLAG_MACHINE,
+    FLAG_PARAMETRIC,
+    MM_PER_INCH,
+    MOVE_ARC_CCW,
+    MOVE_ARC_CW,
+    MOVE_LINE,
+    MOVE_RAPID,
+    PLANE_XY,
+    PLANE_XZ,
+    PLANE_YZ,
+    STYLE_LITERAL,
+    STYLE_NO_LEADING_ZERO,
+    STYLE_PLUS,
+    STYLE_TRAILING_DOT,
+    MoveTableBuilder,
+    Program,
+    decode_source,
+    looks_binary,
+)
+
+__all__ = ["Block", "Word", "detect_dialect", "read_gcode", "write_gcode"]
+
+# Letters LinuxCNC accepts as words (O is handled separately, E is not a word).
+_VALID_LETTERS = frozenset("ABCDFGHIJKLMNPQRSTUVWXYZ")
+_AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
+_CENTER_INDEX = {"I": 0, "J": 1, "K": 2}
+
+_LITERAL = re.compile(r"([+-]?)[ \t]*(\d*)(\.?)(\d*)")
+_SIMPLE_LINE = re.compile(r"[ \t]*(?:[A-DF-NP-Za-df-np-z][ \t]*[+-]?[ \t]*(?:\d+\.?\d*|\.\d+)[ \t]*)*")
+_SIMPLE_WORD = re.compile(r"([A-DF-NP-Za-df-np-z])[ \t]*([+-]?)[ \t]*(\d*)(\.?)(\d*)")
+_O_WORD = re.compile(r"[Oo]\s*(<[^>]*>|\d+|#\d+|\[)")
+_O_KEYWORDS = (
+    "sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
+    "do", "repeat", "endrepeat", "break", "continue",
+)
+
+# Modal groups of G codes (codes as round(value * 10)).
+_MOTION = {0, 10, 20, 30, 330, 331, 382, 383, 384, 385, 50, 51, 52, 53, 730, 760, 800, 810, 820, 830, 840,
+           850, 860, 870, 880, 890}
+_GROUP0 = {40, 100, 280, 281, 300, 301, 520, 530, 920, 921, 922, 923}
+_AXIS_GROUP0 = {100, 280, 300, 520, 920}
+_KNOWN_G = _MOTION | _GROUP0 | {
+    170, 171, 180, 181, 190, 191, 200, 210, 400, 410, 411, 420, 421, 430, 431, 432, 490, 540, 550, 560, 570,
+    580, 590, 591, 592, 593, 610, 611, 640, 700, 710, 720, 760, 800, 900, 901, 910, 911, 930, 940, 950, 960,
+    970, 980, 990, 70, 80, 150, 160,
+}
+_UNSUPPORTED_G = {
+    50: "G5 cubic spline", 51: "G5.1 quadratic spline", 52: "G5.2 NURBS", 53: "G5.3 NURBS",
+    70: "G7 lathe diameter mode", 80: "G8 lathe radius mode", 150: "G15 polar mode", 160: "G16 polar mode",
+    330: "G33 spindle-synchronised motion", 331: "G33.1 rigid tapping", 382: "G38.2 probing",
+    383: "G38.3 probing", 384: "G38.4 probing", 385: "G38.5 probing", 730: "G73 canned cycle",
+    760: "G76 threading cycle", 810: "G81 canned cycle", 820: "G82 canned cycle", 830: "G83 canned cycle",
+    840: "G84 canned cycle", 850: "G85 canned cycle", 860: "G86 canned cycle", 870: "G87 canned cycle",
+    880: "G88 canned cycle", 890: "G89 canned cycle", 411: "G41.1 dynamic cutter compensation",
+    421: "G42.1 dynamic cutter compensation", 432: "G43.2 additional tool length offset",
+    923: "G92.3 restore of saved offsets", 960: "G96 constant surface speed", 700: "G70 lathe cycle",
+    710: "G71 lathe cycle", 720: "G72 lathe cycle",
+}
+_CS_CODES = {540: 1, 550: 2, 560: 3, 570: 4, 580: 5, 590: 6, 591: 7, 592: 8, 593: 9}
+
+
+@dataclass(slots=True)
+class Word:
+    """One word of a block: letter, value and where its number is in the text."""
+
+    letter: str
+    value: float
+    start: int  # offset of the number (after the letter and spaces)
+    end: int
+    decimals: int
+    style: int
+
+
+@dataclass(slots=True)
+class Block:
+    """One lexed line."""
+
+    line: int
+    words: list[Word] = field(default_factory=list)
+    assignments: list[tuple[str | int, float]] = field(default_factory=list)
+    comments: list[str] = field(default_factory=list)
+    block_delete: bool = False
+    percent: bool = False
+    o_word: str | None = None  # the o-word text (control flow) if any
+    system: str | None = None  # grbl '$' command
+    polar: bool = False
+    end_offset: int = -1  # offset just past the last word (insertion point)
+
+
+class _Lexer:
+    """Cuts lines into blocks; evaluates parameters and expressions."""
+
+    def __init__(self, path: Path, params: Parameters) -> None:
+        self.path = path
+        self.params = params
+        self._permissive = Parameters(permissive=True)
+
+    @property
+    def lenient(self) -> bool:
+        """After the interpreter stopped, lines are checked for syntax only."""
+        return self.params is self._permissive
+
+    @lenient.setter
+    def lenient(self, on: bool) -> None:
+        if on:
+            self.params = self._permissive
+
+    def error(self, line: int, problem: str) -> ProgramError:
+        return ProgramError(self.path, line, problem)
+
+    def lex(self, s: str, base: int, line: int) -> Block:
+        """Lex one line ``s`` (no line ending) that starts at text offset ``base``."""
+        blk = Block(line)
+        if _SIMPLE_LINE.fullmatch(s) is not None:
+            words = blk.words
+            seen = 0
+            for m in _SIMPLE_WORD.finditer(s):
+                letter = m.group(1).upper()
+                sign, ip, dot, fp = m.group(2), m.group(3), m.group(4), m.group(5)
+                style = STYLE_LITERAL
+                if sign == "+":
+                    style |= STYLE_PLUS
+                if not ip:
+                    style |= STYLE_NO_LEADING_ZERO
+                elif dot and not fp:
+                    style |= STYLE_TRAILING_DOT
+                txt = m.group(0)[1:].replace(" ", "").replace("\t", "")
+                value = float(txt)
+                bit = 1 << (ord(letter) - 65)
+                if seen & bit and letter not in "GM":
+                    raise self.error(line, f"word {letter} appears twice in one block")
+                seen |= bit
+                words.append(Word(letter, value, base + m.start(2), base + m.end(), len(fp), style))
+            if words:
+                blk.end_offset = base + m.end()
+            return blk
+        return self._lex_general(s, base, line, blk)
+
+    def _lex_general(self, s: str, base: int, line: int, blk: Block) -> Block:
+        n = len(s)
+        pos = 0
+        seen: set[str] = set()
+        pending_assign: list[tuple[str | int, float]] = []
+        first = True
+        while pos < n:
+            ch = s[pos]
+            if ch in " \t\r\x0c\x1a":
+                pos += 1
+                continue
+            if ch == "(":
+                end = s.find(")", pos + 1)
+                if end < 0:
+                    raise self.error(line, "comment '(' is not closed on this line")
+                if "(" in s[pos + 1:end]:
+                    raise self.error(line, "nested '(' inside a comment")
+                blk.comments.append(s[pos + 1:end])
+                pos = end + 1
+                continue
+            if ch == ";":
+                blk.comments.append(s[pos + 1:])
+                break
+            if ch == "%":
+                rest = s[pos + 1:].strip()
+                if blk.words or blk.assignments or not first or (rest and not rest.startswith(("(", ";"))):
+                    raise self.error(line, "'%' must stand alone on its line")
+                blk.percent = True
+                pos += 1
+                first = False
+                continue
+            if ch == "/" and first:
+                blk.block_delete = True
+                pos += 1
+                continue
+            if ch == "$" and first:
+                blk.system = s[pos:].strip()
+                break
+            first = False
+            if ch == "#":
+                key, pos = self._param_key(s, pos, line)
+                p2 = pos
+                while p2 < n and s[p2] in " \t":
+                    p2 += 1
+                if p2 >= n or s[p2] != "=":
+                    raise self.error(line, "parameter reference without '=' (assignment expected)")
+                value, pos = self._value(s, p2 + 1, line)
+                pending_assign.append((key, value))
+                continue
+            if ch in "@^":
+                blk.polar = True
+                value, pos = self._value(s, pos + 1, line)
+                blk.words.append(Word(ch, value, base + pos, base + pos, 0, 0))
+                blk.end_offset = base + pos
+                continue
+            if ch in "Oo":
+                m = _O_WORD.match(s, pos)
+                if m is None:
+                    raise self.error(line, "O-word without a number or <name>")
+                rest = s[m.end():].lstrip().lower()
+                if blk.words:
+                    raise self.error(line, "O-word must start the block")
+                kw = next((k for k in _O_KEYWORDS if rest.startswith(k)), None)
+                if kw is None:
+                    if (m.group(1).isdigit() and not rest.strip(" \t")) or rest.startswith(("(", ";")):
+                        # Fanuc program number "O0001" on its own line
+                        blk.o_word = "program-number"
+                        pos = m.end()
+                        continue
+                    raise self.error(line, f"O-word without a known keyword ({', '.join(_O_KEYWORDS)})")
+                blk.o_word = kw
+                break
+            if ch.isalpha():
+                letter = ch.upper()
+                if letter not in _VALID_LETTERS:
+                    raise self.error(line, f"unknown word '{ch}'")
+                vpos = pos + 1
+                while vpos < n and s[vpos] in " \t":
+                    vpos += 1
+                m = _LITERAL.match(s, vpos)
+                literal = m is not None and (m.group(2) or m.group(4))
+                if literal:
+                    assert m is not None
+                    sign, ip, dot, fp = m.group(1), m.group(2), m.group(3), m.group(4)
+                    style = STYLE_LITERAL
+                    if sign == "+":
+                        style |= STYLE_PLUS
+                    if not ip:
+                        style |= STYLE_NO_LEADING_ZERO
+                    elif dot and not fp:
+                        style |= STYLE_TRAILING_DOT
+                    value = float(f"{sign}{ip}{dot}{fp}" if ip else f"{sign}0{dot}{fp}")
+                    word = Word(letter, value, base + vpos, base + m.end(), len(fp), style)
+                    pos = m.end()
+                else:
+                    if vpos >= n or not (s[vpos] in "#[+-" or s[vpos].isalpha()):
+                        raise self.error(line, f"{letter} word without a number")
+                    value, pos = self._value(s, vpos, line)
+                    word = Word(letter, value, base + vpos, base + pos, 0, 0)
+                if letter in seen and letter not in "GM":
+                    raise self.error(line, f"word {letter} appears twice in one block")
+                seen.add(letter)
+                blk.words.append(word)
+                blk.end_offset = base + pos
+                continue
+            raise self.error(line, f"unexpected character {ch!r}")
+        blk.assignments = pending_assign
+        return blk
+
+    def _param_key(self, s: str, pos: int, line: int) -> tuple[str | int, int]:
+        try:
+            return read_param_ref(s, pos, self.params)
+        except ExprError as exc:
+            raise self.error(line, str(exc)) from None
+        except RecursionError:
+            raise self.error(line, "expression nested too deeply") from None
+
+    def _value(self, s: str, pos: int, line: int) -> tuple[float, int]:
+        try:
+            value, end = read_value(s, pos, self.params)
+        except ExprError as exc:
+            raise self.error(line, str(exc)) from None
+        except RecursionError:
+            raise self.error(line, "expression nested too deeply") from None
+        if not math.isfinite(value) or abs(value) > 1e12:
+            raise self.error(line, f"value {value!r} out of range")
+        return value, end
+
+
+class _Unsupported(Exception):
+    def __init__(self, line: int, problem: str) -> None:
+        super().__init__(problem)
+        self.line = line
+        self.problem = problem
+
+
+@dataclass(slots=True)
+class _State:
+    unit: float = 1.0
+    plane: int = PLANE_XY
+    absolute: bool = True
+    arc_absolute: bool = False
+    feed_mode: int = 940
+    feed: float = 0.0  # program units / min
+    spindle: float = 0.0
+    motion: int = 800  # G80: no motion mode active at start (as LinuxCNC)
+    cs: int = 1
+    cutter_comp: bool = False
+    pos: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    g5x: list[list[float]] = field(default_factory=lambda: [[0.0, 0.0, 0.0] for _ in range(10)])
+    g92: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    units_seen: str | None = None
+
+    def offset(self) -> tuple[float, float, float]:
+        o = self.g5x[self.cs]
+        g = self.g92
+        return (o[0] + g[0], o[1] + g[1], o[2] + g[2])
+
+
+_PLANE_AXES = {PLANE_XY: (0, 1, 2), PLANE_XZ: (2, 0, 1), PLANE_YZ: (1, 2, 0)}
+
+
+class _Interpreter:
+    def __init__(self, path: Path, default_units: str, params: Parameters) -> None:
+        self.path = path
+        self.st = _State()
+        if default_units == "inch":
+            self.st.unit = MM_PER_INCH
+        self.params = params
+        self.builder = MoveTableBuilder()
+        self.warnings: list[str] = []
+        self.ended = False
+        self.axis_warned = False
+
+    def error(self, line: int, problem: str) -> _Unsupported:
+        """A block the interpreter refuses (as LinuxCNC would): stops the interpretation."""
+        return _Unsupported(line, problem)
+
+    def execute(self, blk: Block) -> None:
+        if blk.o_word is not None and blk.o_word != "program-number":
+            raise _Unsupported(blk.line, f"O-word '{blk.o_word}' (subroutines and control flow) is not modelled")
+        if blk.system is not None:
+            self.warnings.append(f"line {blk.line}: grbl system command {blk.system!r} ignored")
+            return
+        if blk.polar:
+            raise _Unsupported(blk.line, "polar coordinates (@ ^) are not modelled")
+        st = self.st
+        words = blk.words
+        if not words:
+            self._assign(blk)
+            return
+        letters: dict[str, Word] = {}
+        gcodes: list[int] = []
+        mcodes: list[int] = []
+        for w in words:
+            if w.letter == "G":
+                code = round(w.value * 10)
+                if abs(w.value * 10 - code) > 1e-6 or code not in _KNOWN_G:
+                    raise ProgramError(self.path, blk.line, f"unknown G code G{w.value:g}")
+                gcodes.append(code)
+            elif w.letter == "M":
+                if abs(w.value - round(w.value)) > 1e-6:
+                    raise ProgramError(self.path, blk.line, f"bad M code M{w.value:g}")
+                mcodes.append(round(w.value))
+            else:
+                letters[w.letter] = w
+        line = blk.line
+        for code in gcodes:
+            if code in _UNSUPPORTED_G:
+                raise _Unsupported(line, f"{_UNSUPPORTED_G[code]} is not modelled")
+        for mc in mcodes:
+            if mc in (98, 99):
+                raise _Unsupported(line, f"M{mc} subprogram call/return is not modelled")
+        if "U" in letters or "V" in letters or "W" in letters:
+            raise _Unsupported(line, "U/V/W axes are not modelled")
+        # modal groups: at most one per group
+        motion_codes = [c for c in gcodes if c in _MOTION]
+        if len(motion_codes) == 2 and 800 in motion_codes:
+            # "G00 ... G80" (Fanuc-style safety line): LinuxCNC accepts it; the real motion code wins
+            motion_codes = [c for c in motion_codes if c != 800]
+        if len(motion_codes) > 1:
+            raise self.error(line, "two G codes of the motion group in one block")
+        # order of execution (RS274/NGC): feed mode, F, S, plane, units, comp, cs, distance, group 0, motion
+        for c in gcodes:
+            if c in (930, 940, 950):
+                st.feed_mode = c
+        if "F" in letters:
+            fw = letters["F"]
+            if fw.value < 0:
+                raise self.error(line, "negative feed rate")
+            st.feed = fw.value
+        if "S" in letters:
+            st.spindle = abs(letters["S"].value)
+        for c in gcodes:
+            if c == 40:
+                # G4 dwell: needs P
+                if "P" not in letters:
+                    raise self.error(line, "G4 dwell without a P word")
+            elif c in (170, 180, 190):
+                st.plane = c // 10
+            elif c in (171, 181, 191):
+                raise _Unsupported(line, f"G{c / 10:g} UVW plane is not modelled")
+            elif c == 200:
+                st.unit = MM_PER_INCH
+                st.units_seen = st.units_seen or "inch"
+            elif c == 210:
+                st.unit = 1.0
+                st.units_seen = st.units_seen or "mm"
+            elif c == 400:
+                st.cutter_comp = False
+            elif c in (410, 420):
+                st.cutter_comp = True
+            elif c in _CS_CODES:
+                st.cs = _CS_CODES[c]
+            elif c == 900:
+                st.absolute = True
+            elif c == 910:
+                st.absolute = False
+            elif c == 901:
+                st.arc_absolute = True
+            elif c == 911:
+                st.arc_absolute = False
+        axis_words = [letters.get(a) for a in "XYZ"]
+        has_axis = any(w is not None for w in axis_words) or any(a in letters for a in "ABC")
+        group0 = [c for c in gcodes if c in _GROUP0]
+        axis_group0 = [c for c in group0 if c in _AXIS_GROUP0]
+        if len(axis_group0) > 1:
+            raise self.error(line, "two G codes that use axis words in one block")
+        if motion_codes and axis_group0 and has_axis:
+            raise self.error(line, "axis words used by both a motion and a non-modal G code")
+        machine = 530 in group0
+        for c in group0:
+            if c == 100:
+                self._g10(letters, line)
+            elif c in (280, 300):
+                self._home(c, letters, axis_words, line)
+            elif c in (281, 301):
+                base = 5161 if c == 281 else 5181
+                for i in range(3):
+                    self.params.numbered[base + i] = st.pos[i] / st.unit
+            elif c == 920:
+                self._g92(axis_words, line)
+            elif c in (921, 922):
+                st.g92 = [0.0, 0.0, 0.0]
+            elif c == 520:
+                for i, w in enumerate(axis_words):
+                    if w is not None:
+                        st.g92[i] = w.value * st.unit
+        if motion_codes:
+            st.motion = motion_codes[0]
+        if has_axis and not axis_group0:
+            if st.motion == 800:
+                raise self.error(line, "axis words without an active motion mode (G0/G1/G2/G3)")
+            if any(a in letters for a in "ABC"):
+                if not self.axis_warned:
+                    self.warnings.append(f"line {line}: rotary A/B/C words are read but not modelled; such moves are never corrected")
+                    self.axis_warned = True
+            self._motion(st.motion, letters, axis_words, line, blk, machine)
+        elif motion_codes and motion_codes[0] in (20, 30) and ("I" in letters or "J" in letters or "K" in letters or "R" in letters):
+            # full circle in place (no axis words): end point = start point
+            self._motion(st.motion, letters, axis_words, line, blk, machine)
+        elif machine and not has_axis:
+            pass
+        for mc in mcodes:
+            if mc in (2, 30, 60) and mc != 60:
+                self.ended = True
+        self._assign(blk)
+
+    def _assign(self, blk: Block) -> None:
+        for key, value in blk.assignments:
+            if isinstance(key, int):
+                if key < 1 or key > 5601:
+                    raise self.error(blk.line, f"parameter number #{key} out of range")
+                self.params.numbered[key] = value
+            else:
+                self.params.named[key] = value
+
+    def _g10(self, letters: dict[str, Word], line: int) -> None:
+        st = self.st
+        lw, pw = letters.get("L"), letters.get("P")
+        if lw is None:
+            raise self.error(line, "G10 without an L word")
+        lval = round(lw.value)
+        if lval not in (2, 20):
+            raise _Unsupported(line, f"G10 L{lval} (tool table) is not modelled")
+        if "R" in letters and abs(letters["R"].value) > 0:
+            raise _Unsupported(line, "G10 with R (rotated coordinate system) is not modelled")
+        p = round(pw.value) if pw is not None else 0
+        if p < 0 or p > 9:
+            raise self.error(line, f"G10 P{p} out of range 0..9")
+        cs = st.cs if p == 0 else p
+        for i, a in enumerate("XYZ"):
+            w = letters.get(a)
+            if w is None:
+                continue
+            if lval == 2:
+                st.g5x[cs][i] = w.value * st.unit
+            else:
+                st.g5x[cs][i] = st.pos[i] - w.value * st.unit - st.g92[i]
+
+    def _g92(self, axis_words: list[Word | None], line: int) -> None:
+        st = self.st
+        if all(w is None for w in axis_words):
+            raise self.error(line, "G92 without axis words")
+        for i, w in enumerate(axis_words):
+            if w is not None:
+                st.g92[i] = st.pos[i] - st.g5x[st.cs][i] - w.value * st.unit
+
+    def _home(self, code: int, letters: dict[str, Word], axis_words: list[Word | None], line: int) -> None:
+        st = self.st
+        off = st.offset()
+        if any(w is not None for w in axis_words):
+            inter = self._target(axis_words, off, machine=False)
+            self._add(MOVE_RAPID, line, tuple(inter), flags=FLAG_HOME, words=axis_words, offset=off)
+        base = 5161 if code == 280 else 5181
+        home = [self.params.numbered.get(base + i, 0.0) * st.unit for i in range(3)]
+        target = list(st.pos)
+        for i, w in enumerate(axis_words):
+            if w is not None or all(x is None for x in axis_words):
+                target[i] = home[i]
+        self._add(MOVE_RAPID, line, tuple(target), flags=FLAG_HOME | FLAG_MACHINE, words=[None, None, None], offset=off)
+
+    def _target(self, axis_words: list[Word | None], off: tuple[float, float, float], machine: bool) -> list[float]:
+        st = self.st
+        t = list(st.pos)
+        for i, w in enumerate(axis_words):
+            if w is None:
+                continue
+            if machine:
+                t[i] = w.value * st.unit
+            elif st.absolute:
+                t[i] = w.value * st.unit + off[i]
+            else:
+                t[i] = st.pos[i] + w.value * st.unit
+        return t
+
+    def _add(
+        self,
+        kind: int,
+        line: int,
+        end: tuple[float, ...],
+        *,
+        flags: int = 0,
+        words: list[Word | None],
+        offset: tuple[float, float, float],
+        feed: float = float("nan"),
+        correctable: bool = False,
+        center: tuple[float, float, float] = (float("nan"),) * 3,
+        plane: int = PLANE_XY,
+        turns: int = 1,
+        cwords: list[Word | None] | None = None,
+        insert_at: int = -1,
+    ) -> None:
+        st = self.st
+        inc = not st.absolute and not (flags & FLAG_MACHINE)
+        ws = tuple(w.start if w is not None else -1 for w in words)
+        we = tuple(w.end if w is not None else -1 for w in words)
+        wd = tuple(w.decimals if w is not None else 0 for w in words)
+        wst = tuple(w.style if w is not None else 0 for w in words)
+        winc = (inc and words[0] is not None, inc and words[1] is not None, inc and words[2] is not None)
+        kw = {}
+        if cwords is not None:
+            cinc = not st.arc_absolute
+            kw = {
+                "cstart": tuple(w.start if w is not None else -1 for w in cwords),
+                "cend": tuple(w.end if w is not None else -1 for w in cwords),
+                "cdec": tuple(w.decimals if w is not None else 0 for w in cwords),
+                "cstyle": tuple(w.style if w is not None else 0 for w in cwords),
+                "cinc": tuple(cinc and w is not None for w in cwords),
+            }
+        start = (st.pos[0], st.pos[1], st.pos[2])
+        endt = (end[0], end[1], end[2])
+        self.builder.add(
+            kind, line, start, endt, feed=feed, unit=st.unit, offset=offset, center=center, plane=plane,
+            turns=turns, correctable=correctable, flags=flags, wstart=ws, wend=we, wdec=wd, wstyle=wst,
+            winc=winc, insert_at=insert_at, **kw,
+        )
+        st.pos = [endt[0], endt[1], endt[2]]
+
+    def _feed_mm_min(self, length_mm: float, line: int, letters: dict[str, Word]) -> float:
+        st = self.st
+        if st.feed_mode == 930:
+            if "F" not in letters:
+                raise self.error(line, "inverse time feed mode (G93) needs an F word on every feed move")
+            return length_mm * st.feed
+        if st.feed_mode == 950:
+            if st.spindle <= 0:
+                raise _Unsupported(line, "feed per revolution (G95) without a spindle speed")
+            return st.feed * st.unit * st.spindle
+        return st.feed * st.unit
+
+    def _motion(self, motion: int, letters: dict[str, Word], axis_words: list[Word | None], line: int,
+                blk: Block, machine: bool) -> None:
+        st = self.st
+        off = st.offset()
+        target = self._target(axis_words, off, machine)
+        flags = FLAG_MACHINE if machine else 0
+        if st.cutter_comp:
+            flags |= FLAG_CUTTER_COMP
+        if any(w is not None and not (w.style & STYLE_LITERAL) for w in axis_words):
+            flags |= FLAG_PARAMETRIC
+        has_rotary = any(a in letters for a in "ABC")
+        if motion == 0:
+            self._add(MOVE_RAPID, line, tuple(target), flags=flags, words=axis_words, offset=off,
+                      insert_at=blk.end_offset)
+            return
+        if motion == 10:
+            if st.feed <= 0 and st.feed_mode == 940:
+                raise self.error(line, "G1 with zero feed rate (no F word before)")
+            length = math.dist(st.pos, target)
+            feed = self._feed_mm_min(length, line, letters)
+            correctable = not machine and not (flags & FLAG_PARAMETRIC) and not has_rotary
+            self._add(MOVE_LINE, line, tuple(target), flags=flags, words=axis_words, offset=off, feed=feed,
+                      correctable=correctable, insert_at=blk.end_offset)
+            return
+        if motion in (20, 30):
+            if machine:
+                raise self.error(line, "G53 is only allowed with G0 or G1")
+            if st.feed <= 0 and st.feed_mode == 940:
+                raise self.error(line, f"G{motion // 10} with zero feed rate (no F word before)")
+            self._arc(motion, letters, axis_words, target, off, line, blk, flags)
+            return
+        raise self.error(line, f"motion mode G{motion / 10:g} is not a motion")
+
+    def _arc(self, motion: int, letters: dict[str, Word], axis_words: list[Word | None], target: list[float],
+             off: tuple[float, float, float], line: int, blk: Block, flags: int) -> None:
+        st = self.st
+        a1, a2, _ = _PLANE_AXES[st.plane]
+        cw = motion == 20
+        start = st.pos
+        rw = letters.get("R")
+        center = [float("nan")] * 3
+        cwords: list[Word | None] = [letters.get("I"), letters.get("J"), letters.get("K")]
+        for i in range(3):
+            if cwords[i] is not None and i not in (a1, a2):
+                raise self.error(line, f"{'IJK'[i]} word not allowed in plane G{st.plane}")
+        turns = 1
+        if "P" in letters:
+            pv = letters["P"].value
+            if pv < 1 or abs(pv - round(pv)) > 1e-6:
+                raise self.error(line, f"arc P{pv:g} must be a positive integer number of turns")
+            turns = round(pv)
+        if rw is not None:
+            if cwords[a1] is not None or cwords[a2] is not None:
+                raise self.error(line, "arc with both R and I/J/K")
+            r = rw.value * st.unit
+            dx = target[a1] - start[a1]
+            dy = target[a2] - start[a2]
+            d = math.hypot(dx, dy)
+            if d < 1e-9:
+                raise self.error(line, "arc with R: start and end are the same point (a full circle needs I/J/K)")
+            half = d / 2.0
+            ar = abs(r)
+            if ar < half:
+                if half - ar > 0.0127 and half - ar > 1e-3 * half:
+                    raise self.error(line, f"arc radius {ar:g} mm too small to reach the end point")
+                ar = half
+            h = math.sqrt(max(ar * ar - half * half, 0.0))
+            ux, uy = dx / d, dy / d
+            nx, ny = -uy, ux
+            sgn = (-1.0 if cw else 1.0) * (1.0 if r >= 0 else -1.0)
+            mx, my = start[a1] + dx / 2, start[a2] + dy / 2
+            center[a1] = mx + sgn * h * nx
+            center[a2] = my + sgn * h * ny
+        else:
+            if cwords[a1] is None and cwords[a2] is None:
+                raise self.error(line, "arc without I/J/K or R")
+            for i in (a1, a2):
+                w = cwords[i]
+                v = w.value * st.unit if w is not None else 0.0
+                if st.arc_absolute:
+                    center[i] = (v + off[i]) if w is not None else start[i]
+                else:
+                    center[i] = start[i] + v
+            r0 = math.hypot(start[a1] - center[a1], start[a2] - center[a2])
+            r1 = math.hypot(target[a1] - center[a1], target[a2] - center[a2])
+            if r0 < 1e-9:
+                raise self.error(line, "arc with zero radius (centre at the start point)")
+            # LinuxCNC accepts small mismatches (its own sample good-arc.small: 0.028 mm, 0.11 %)
+            if abs(r1 - r0) > 0.05 and abs(r1 - r0) > 1e-3 * r0:
+                raise self.error(line, f"arc radius to end ({r1:.4f} mm) differs from radius to start ({r0:.4f} mm)")
+        lin = _PLANE_AXES[st.plane][2]
+        center[lin] = float("nan")
+        length = _arc_length(start, target, center, a1, a2, lin, cw, turns)
+        feed = self._feed_mm_min(length, line, letters)
+        kind = MOVE_ARC_CW if cw else MOVE_ARC_CCW
+        self._add(kind, line, tuple(target), flags=flags, words=axis_words, offset=off, feed=feed,
+                  center=(center[0], center[1], center[2]), plane=st.plane, turns=turns,
+                  cwords=cwords if rw is None else None, insert_at=blk.end_offset)
+
+
+def _arc_length(start: list[float], end: list[float], center: list[float], a1: int, a2: int, lin: int, cw: bool,
+                turns: int) -> float:
+    r = math.hypot(start[a1] - center[a1], start[a2] - center[a2])
+    t0 = math.atan2(start[a2] - center[a2], start[a1] - center[a1])
+    t1 = math.atan2(end[a2] - center[a2], end[a1] - center[a1])
+    sweep = (t0 - t1) if cw else (t1 - t0)
+    sweep %= 2 * math.pi
+    if sweep < 1e-12:
+        sweep = 2 * math.pi
+    sweep += 2 * math.pi * (turns - 1)
+    return math.hypot(r * sweep, end[lin] - start[lin])
+
+
+def detect_dialect(path: Path, text: str) -> str:
+    """Guess the G-code dialect: ``linuxcnc``, ``fanuc`` or ``grbl``."""
+    head = text[:20000]
+    if re.search(r"^\s*\$[A-Za-z$#]", head, re.MULTILINE):
+        return "grbl"
+    if re.search(r"^\s*[Oo]\s*(<[^>]*>|\d+)\s*(sub|call|if|while|do|repeat)", head, re.MULTILINE) or "#<" in head:
+        return "linuxcnc"
+    suffix = path.suffix.lower()
+    if suffix == ".ngc":
+        return "linuxcnc"
+    if suffix in (".gcode", ".gc", ".g"):
+        return "grbl"
+    return "fanuc"
+
+
+def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dialect: str | None = None) -> Program:
+    """Read a G-code program.
+
+    Parameters
+    ----------
+    path : str or Path
+        File name (for messages and the dialect guess).
+    data : bytes
+        The file content.
+    default_units : {"mm", "inch"}
+        Units when the program has no G20/G21 before its first move.
+    dialect : str, optional
+        Force ``linuxcnc``, ``fanuc`` or ``grbl``; guessed when omitted.
+
+    Returns
+    -------
+    Program
+        With :attr:`Program.unsupported` set if the interpreter stopped early.
+
+    Raises
+    ------
+    ProgramError
+        Binary or empty file, or a syntax error on any line.
+    """
+    p = Path(path)
+    if not data.strip():
+        raise ProgramError(p, None, "empty program")
+    if looks_binary(data):
+        raise ProgramError(p, None, "binary file, not a G-code program")
+    text = decode_source(data)
+    params = Parameters()
+    lexer = _Lexer(p, params)
+    interp = _Interpreter(p, default_units, params)
+    unsupported: tuple[int, str] | None = None
+    percent_count = 0
+    running = True
+    base = 0
+    lex = lexer.lex
+    execute = interp.execute
+    for lineno, raw in enumerate(text.split("\n"), start=1):
+        s = raw[:-1] if raw.endswith("\r") else raw
+        blk = lex(s, base, lineno)
+        base += len(raw) + 1
+        if blk.percent:
+            percent_count += 1
+            if percent_count >= 2:
+                running = False
+                lexer.lenient = True
+            continue
+        if not running:
+            continue
+        try:
+            execute(blk)
+        except _Unsupported as exc:
+            unsupported = (exc.line, exc.problem)
+            running = False
+            lexer.lenient = True
+            continue
+        if interp.ended:
+            running = False
+            lexer.lenient = True
+    units = interp.st.units_seen or default_units
+    dial = dialect or detect_dialect(p, text)
+    prog = Program(path=p, text=text, dialect=dial, units=units, moves=interp.builder.build(), name=p.stem,
+                   warnings=interp.warnings, unsupported=unsupported)
+    return prog
+
+
+def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: str = "", dialect: str = "linuxcnc") -> str:
+    """Write a move table (from any dialect) as a plain absolute G-code program.
+
+    Parameters
+    ----------
+    moves : MoveTable
+        The moves, consistent frame; written in the program frame (``end_mm - offset_mm``).
+    units : {"mm", "inch"}
+        Units of the written program (G21 / G20).
+    decimals : int
+        Decimal places of coordinates.
+    name : str
+        Program name for the header comment.
+    dialect : str
+        ``linuxcnc`` (ends with M2), ``fanuc`` (``%`` delimited, M30) or ``grbl``.
+    """
+    from ilcnc.program.model import MoveTable
+
+    assert isinstance(moves, MoveTable)
+    scale = 1.0 / MM_PER_INCH if units == "inch" else 1.0
+    d = decimals
+    out: list[str] = []
+    if dialect == "fanuc":
+        out.append("%")
+    safe = "".join(c for c in name if c not in "()")
+    out.append(f"(converted by ilcnc from {safe})" if safe else "(written by ilcnc)")
+    out.append(f"G90 G94 G17 {'G20' if units == 'inch' else 'G21'}")
+    plane = 17
+    feed = None
+    last: list[str | None] = [None, None, None]
+    ends = (moves.end_mm - moves.offset_mm) * scale
+    starts = (moves.start_mm - moves.offset_mm) * scale
+    centers = (moves.center_mm - moves.offset_mm) * scale
+    for i in range(len(moves)):
+        kind = int(moves.kind[i])
+        words: list[str] = []
+        if kind >= MOVE_ARC_CW and int(moves.plane[i]) != plane:
+            plane = int(moves.plane[i])
+            words.append(f"G{plane}")
+        words.append(("G0", "G1", "G2", "G3")[kind])
+        for a in range(3):
+            s = f"{ends[i, a]:.{d}f}"
+            if s.startswith("-") and float(s) == 0.0:
+                s = s[1:]
+            if s != last[a] or (kind >= MOVE_ARC_CW and a in _PLANE_AXES[plane][:2]):
+                words.append(f"{AXES_LETTERS[a]}{s}")
+                last[a] = s
+        if kind >= MOVE_ARC_CW:
+            for a in _PLANE_AXES[plane][:2]:
+                words.append(f"{'IJK'[a]}{centers[i, a] - starts[i, a]:.{d}f}")
+            if int(moves.turns[i]) > 1:
+                words.append(f"P{int(moves.turns[i])}")
+        if kind != MOVE_RAPID:
+            f = float(moves.feed_mm_min[i]) * scale
+            fs = f"{f:.{max(0, d - 2)}f}"
+            if fs != feed and math.isfinite(f):
+                words.append(f"F{fs}")
+                feed = fs
+        out.append(" ".join(words))
+    out.append("M30" if dialect == "fanuc" else "M2")
+    if dialect == "fanuc":
+        out.append("%")
+    return "\n".join(out) + "\n"
+
+
+AXES_LETTERS = "XYZ"

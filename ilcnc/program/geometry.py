@@ -1,0 +1,88 @@
+"""Vectorised geometry of a move table: lengths, extents, feed-only times."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, MoveTable
+
+# (first, second, linear) axis of each plane, as RS-274 orders them
+_PLANE_AXES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
+
+
+def arc_sweep_rad(moves: MoveTable) -> NDArray[np.float64]:
+    """Signed-free sweep angle of every arc (rad, > 0; 0 for straight moves)."""
+    n = len(moves)
+    sweep = np.zeros(n)
+    is_arc = moves.kind >= MOVE_ARC_CW
+    if not is_arc.any():
+        return sweep
+    for plane, (a1, a2, _lin) in _PLANE_AXES.items():
+        sel = is_arc & (moves.plane == plane)
+        if not sel.any():
+            continue
+        s, e, c = moves.start_mm[sel], moves.end_mm[sel], moves.center_mm[sel]
+        t0 = np.arctan2(s[:, a2] - c[:, a2], s[:, a1] - c[:, a1])
+        t1 = np.arctan2(e[:, a2] - c[:, a2], e[:, a1] - c[:, a1])
+        cw = moves.kind[sel] == MOVE_ARC_CW
+        sw = np.where(cw, t0 - t1, t1 - t0) % (2 * np.pi)
+        sw = np.where(sw < 1e-12, 2 * np.pi, sw)
+        sweep[sel] = sw + 2 * np.pi * (moves.turns[sel] - 1)
+    return sweep
+
+
+def move_lengths_mm(moves: MoveTable) -> NDArray[np.float64]:
+    """Path length of every move, mm (arcs and helices exactly)."""
+    d = moves.end_mm - moves.start_mm
+    length = np.sqrt(np.einsum("ij,ij->i", d, d))
+    is_arc = moves.kind >= MOVE_ARC_CW
+    if is_arc.any():
+        sweep = arc_sweep_rad(moves)
+        for plane, (a1, a2, lin) in _PLANE_AXES.items():
+            sel = is_arc & (moves.plane == plane)
+            if not sel.any():
+                continue
+            s, c = moves.start_mm[sel], moves.center_mm[sel]
+            r = np.hypot(s[:, a1] - c[:, a1], s[:, a2] - c[:, a2])
+            length[sel] = np.hypot(r * sweep[sel], d[sel, lin])
+    return length
+
+
+def extents_mm(moves: MoveTable, *, program_frame: bool = True) -> NDArray[np.float64]:
+    """Axis-aligned extents of all end points (and arc quadrant points), shape (2, 3): min, max."""
+    if len(moves) == 0:
+        return np.zeros((2, 3))
+    off = moves.offset_mm if program_frame else 0.0
+    pts = [moves.end_mm - off, moves.start_mm - off]
+    is_arc = moves.kind >= MOVE_ARC_CW
+    if is_arc.any():
+        sweep = arc_sweep_rad(moves)
+        for plane, (a1, a2, _lin) in _PLANE_AXES.items():
+            sel = np.flatnonzero(is_arc & (moves.plane == plane))
+            if sel.size == 0:
+                continue
+            s, c = moves.start_mm[sel], moves.center_mm[sel]
+            r = np.hypot(s[:, a1] - c[:, a1], s[:, a2] - c[:, a2])
+            t0 = np.arctan2(s[:, a2] - c[:, a2], s[:, a1] - c[:, a1])
+            cw = moves.kind[sel] == MOVE_ARC_CW
+            for q in range(4):
+                ang = q * np.pi / 2
+                rel = np.where(cw, t0 - ang, ang - t0) % (2 * np.pi)
+                hit = rel <= sweep[sel]
+                if not hit.any():
+                    continue
+                p = moves.start_mm[sel][hit].copy()
+                p[:, a1] = c[hit, a1] + r[hit] * np.cos(ang)
+                p[:, a2] = c[hit, a2] + r[hit] * np.sin(ang)
+                pts.append(p - (moves.offset_mm[sel][hit] if program_frame else 0.0))
+    allp = np.concatenate(pts)
+    return np.stack([allp.min(axis=0), allp.max(axis=0)])
+
+
+def feed_time_s(moves: MoveTable, rapid_mm_min: float) -> float:
+    """Cycle time at programmed feed, no acceleration (the naive estimate), s."""
+    length = move_lengths_mm(moves)
+    feed = np.where(moves.kind == MOVE_RAPID, rapid_mm_min, moves.feed_mm_min)
+    feed = np.where(np.isfinite(feed) & (feed > 0), feed, rapid_mm_min)
+    return float(np.sum(length / feed) * 60.0)

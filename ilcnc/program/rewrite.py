@@ -1,0 +1,294 @@
+"""Rewrite a program with corrected G01 end points, touching nothing else.
+
+The source text is kept as it is; only the numbers of coordinate words are
+replaced (or a missing word inserted) where the machine would otherwise go
+somewhere else than wanted:
+
+* a corrected command gets its new end point;
+* every other move keeps its absolute end point. In incremental mode
+  (G91, ``IX``) the next word absorbs the change; in absolute mode a block
+  that relied on a modal (unwritten) axis gets that axis written out;
+* an arc whose start moved keeps its centre (incremental I/J/K, ``CC IX``
+  are rewritten) and its end point.
+
+Numbers are written with the decimals the source used, at least
+``min_decimals``, in the spelling of the source word (sign, comma, leading
+zero, trailing dot).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ilcnc.errors import CorrectionError
+from ilcnc.program.model import (
+    FLAG_HOME,
+    FLAG_MACHINE,
+    MOVE_ARC_CW,
+    STYLE_COMMA,
+    STYLE_LITERAL,
+    STYLE_NO_LEADING_ZERO,
+    STYLE_PLUS,
+    Program,
+)
+
+__all__ = ["Edit", "apply_corrections", "format_number"]
+
+_LETTERS = "XYZ"
+_CENTER_LETTERS = "IJK"
+
+
+@dataclass(frozen=True, slots=True)
+class Edit:
+    """One replacement in the source text: ``text[start:end]`` becomes ``new``."""
+
+    start: int
+    end: int
+    new: str
+    line: int
+
+
+def format_number(value: float, decimals: int, style: int, *, klartext: bool = False) -> str:
+    """Spell ``value`` with ``decimals`` places in the style of a source word.
+
+    Parameters
+    ----------
+    value : float
+        The number (program units).
+    decimals : int
+        Decimal places.
+    style : int
+        ``STYLE_*`` bits of the word it replaces.
+    klartext : bool
+        Heidenhain: always an explicit sign.
+    """
+    d = max(0, int(decimals))
+    s = f"{abs(value):.{d}f}"
+    negative = value < 0 and float(s) != 0.0
+    if style & STYLE_NO_LEADING_ZERO and s.startswith("0.") and d > 0:
+        s = s[1:]
+    if style & STYLE_COMMA:
+        s = s.replace(".", ",")
+    if negative:
+        return "-" + s
+    if klartext or style & STYLE_PLUS:
+        return "+" + s
+    return s
+
+
+def _parse(s: str) -> float:
+    return float(s.replace(",", ".").replace(" ", "").replace("\t", ""))
+
+
+def _line_style(text: str, start: int, end: int) -> tuple[bool, str]:
+    """(lowercase, separator) used by the words of the block text[start:end]."""
+    segment = text[start:end]
+    letters = [c for c in segment if c.isalpha()]
+    lower = bool(letters) and sum(c.islower() for c in letters) > len(letters) / 2
+    sep = " " if (" " in segment.strip() or "\t" in segment.strip()) else ""
+    return lower, sep
+
+
+def apply_corrections(
+    program: Program,
+    corrections_mm: NDArray[np.float64],
+    *,
+    min_decimals: int = 3,
+) -> tuple[str, list[Edit]]:
+    """Return the program text with ``corrections_mm`` added to the command end points.
+
+    Parameters
+    ----------
+    program : Program
+        The program as read.
+    corrections_mm : ndarray, shape (N, 3)
+        Correction of each command's end point, mm (0 where none).
+    min_decimals : int
+        Least number of decimals of a rewritten number (the machine's
+        resolution in program units).
+
+    Returns
+    -------
+    text : str
+        New program text (latin-1, like :attr:`Program.text`).
+    edits : list of Edit
+        Every replacement made.
+
+    Raises
+    ------
+    CorrectionError
+        Wrong shape, non-finite corrections, or a change that would have to
+        rewrite a word holding a parameter or an expression.
+    """
+    program.require_complete()
+    corr = np.asarray(corrections_mm, dtype=np.float64)
+    n = program.n_commands
+    if corr.shape != (n, 3):
+        raise CorrectionError(program.path, None, f"corrections have shape {corr.shape}, program has {n} commands")
+    if not np.all(np.isfinite(corr)):
+        k = int(np.flatnonzero(~np.all(np.isfinite(corr), axis=1))[0])
+        raise CorrectionError(program.path, int(program.command_line[k]), f"correction of command k={k} is not finite")
+    mv = program.moves
+    m = len(mv)
+    if m == 0 or not np.any(corr):
+        return program.text, []
+    desired = mv.end_mm.copy()
+    desired[program.command_moves] += corr
+    changed = np.zeros(m, dtype=bool)
+    changed[program.command_moves] = np.any(corr != 0.0, axis=1)
+    klartext = program.dialect == "heidenhain"
+    text = program.text
+    realized = mv.end_mm.copy()
+    edits: list[Edit] = []
+    inserts: dict[int, list[tuple[int, str, int]]] = {}
+
+    todo = sorted(set(np.flatnonzero(changed).tolist()) | set((np.flatnonzero(changed) + 1).tolist()))
+    todo_set = set(todo)
+    idx = 0
+    while idx < len(todo):
+        i = todo[idx]
+        idx += 1
+        if i >= m:
+            continue
+        start_real = realized[i - 1] if i > 0 else mv.start_mm[0]
+        start_orig = mv.start_mm[i]
+        if not changed[i] and np.array_equal(start_real, start_orig):
+            continue
+        end_real = _rewrite_move(program, i, start_real, desired[i], klartext, min_decimals, edits, inserts)
+        # a number written back exactly (to float noise) leaves the later moves alone
+        snap = np.abs(end_real - mv.end_mm[i]) <= 1e-9
+        end_real[snap] = mv.end_mm[i][snap]
+        realized[i] = end_real
+        if not np.array_equal(end_real, mv.end_mm[i]):
+            nxt = i + 1
+            if nxt < m and nxt not in todo_set:
+                todo_set.add(nxt)
+                todo.insert(idx, nxt)
+
+    for pos, items in inserts.items():
+        items.sort()
+        edits.append(Edit(pos, pos, "".join(s for _a, s, _l in items), items[0][2]))
+    edits.sort(key=lambda e: (e.start, e.end))
+    out: list[str] = []
+    last = 0
+    for e in edits:
+        if e.start < last:
+            raise CorrectionError(program.path, e.line, "overlapping rewrites in one block")
+        out.append(text[last:e.start])
+        out.append(e.new)
+        last = e.end
+    out.append(text[last:])
+    return "".join(out), edits
+
+
+def _rewrite_move(
+    program: Program,
+    i: int,
+    start_real: NDArray[np.float64],
+    want: NDArray[np.float64],
+    klartext: bool,
+    min_decimals: int,
+    edits: list[Edit],
+    inserts: dict[int, list[tuple[int, str, int]]],
+) -> NDArray[np.float64]:
+    """Rewrite the words of move ``i`` so it ends at ``want`` from ``start_real``; return where it ends."""
+    mv = program.moves
+    text = program.text
+    line = int(mv.line[i])
+    unit = float(mv.unit_mm[i])
+    flags = int(mv.flags[i])
+    if flags & FLAG_HOME:
+        # G28/G30 go to a stored machine position whatever the start: nothing to absorb
+        return mv.end_mm[i].copy()
+    machine = bool(flags & FLAG_MACHINE)
+    off = np.zeros(3) if machine else mv.offset_mm[i]
+    end = start_real.copy()
+    for a in range(3):
+        ws = int(mv.word_start[i, a])
+        inc = bool(mv.word_incremental[i, a])
+        if ws >= 0:
+            we = int(mv.word_end[i, a])
+            style = int(mv.word_style[i, a])
+            orig_val = _parse(text[ws:we]) if style & STYLE_LITERAL else None
+            new_val = (want[a] - start_real[a]) / unit if inc else (want[a] - off[a]) / unit
+            if orig_val is not None and abs(new_val - orig_val) * unit < 1e-9:
+                end[a] = mv.end_mm[i, a] if not inc else start_real[a] + orig_val * unit
+                continue
+            if not style & STYLE_LITERAL:
+                raise CorrectionError(
+                    program.path, line,
+                    f"the {_LETTERS[a]} word holds a parameter or an expression and cannot absorb a correction",
+                )
+            dec = max(int(mv.word_decimals[i, a]), min_decimals)
+            s = format_number(new_val, dec, style, klartext=klartext)
+            edits.append(Edit(ws, we, s, line))
+            written = _parse(s)
+        else:
+            if abs(want[a] - start_real[a]) <= 1e-12:
+                end[a] = start_real[a]
+                continue
+            new_val = (want[a] - start_real[a]) / unit if inc or _block_incremental(mv, i) else (want[a] - off[a]) / unit
+            inc = inc or _block_incremental(mv, i)
+            pos = int(mv.insert_at[i])
+            if pos < 0:
+                raise CorrectionError(program.path, line, f"no place to insert a {_LETTERS[a]} word in this block")
+            dec = _exact_decimals(new_val, max(min_decimals, int(mv.word_decimals[i].max())))
+            s = format_number(new_val, dec, STYLE_COMMA if _uses_comma(mv, i) else 0, klartext=klartext)
+            letter = _LETTERS[a]
+            if klartext:
+                word = (" I" if inc else " ") + letter + s
+            else:
+                lower, sep = _line_style(text, _line_start(text, pos), pos)
+                word = sep + (letter.lower() if lower else letter) + s
+            inserts.setdefault(pos, []).append((a, word, line))
+            written = _parse(s)
+        end[a] = start_real[a] + written * unit if inc else written * unit + off[a]
+    if mv.kind[i] >= MOVE_ARC_CW:
+        _rewrite_center(program, i, start_real, klartext, min_decimals, edits)
+    return end
+
+
+def _rewrite_center(program: Program, i: int, start_real: NDArray[np.float64], klartext: bool, min_decimals: int,
+                    edits: list[Edit]) -> None:
+    """Keep an arc's centre where it was when its start moved (incremental centre words)."""
+    mv = program.moves
+    unit = float(mv.unit_mm[i])
+    line = int(mv.line[i])
+    for a in range(3):
+        cs = int(mv.center_start[i, a])
+        if cs < 0 or not mv.center_incremental[i, a]:
+            continue
+        if start_real[a] == mv.start_mm[i, a]:
+            continue
+        style = int(mv.center_style[i, a])
+        if not style & STYLE_LITERAL:
+            raise CorrectionError(program.path, line,
+                                  f"the arc centre word {_CENTER_LETTERS[a]} holds a parameter and cannot be kept")
+        ce = int(mv.center_end[i, a])
+        new_val = (mv.center_mm[i, a] - start_real[a]) / unit
+        dec = max(int(mv.center_decimals[i, a]), min_decimals)
+        edits.append(Edit(cs, ce, format_number(new_val, dec, style, klartext=klartext), line))
+
+
+def _exact_decimals(value: float, least: int) -> int:
+    """Fewest decimals (>= least, <= 8) that write ``value`` back to float noise."""
+    for d in range(least, 9):
+        if abs(round(value, d) - value) <= 1e-9:
+            return d
+    return max(least, 8)
+
+
+def _block_incremental(mv: object, i: int) -> bool:
+    """True when any word of move ``i`` is incremental (the block's distance mode)."""
+    return bool(np.any(mv.word_incremental[i]))  # type: ignore[attr-defined]
+
+
+def _uses_comma(mv: object, i: int) -> bool:
+    return bool(np.any(mv.word_style[i] & STYLE_COMMA))  # type: ignore[attr-defined]
+
+
+def _line_start(text: str, pos: int) -> int:
+    return text.rfind("\n", 0, pos) + 1

@@ -1,0 +1,146 @@
+"""export: byte-identical copies, corrections that move exactly their end points."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ilcnc.corrections import write_corrections
+from ilcnc.export import export_program
+from ilcnc.program import read_program
+
+from .conftest import OWN, SAMPLES, sample_files
+
+ROUND_TRIP = sample_files("gcode", "contour", "interp")
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "ilcnc", *args], capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("path", ROUND_TRIP, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_round_trip_is_byte_identical(path: Path, tmp_path: Path) -> None:
+    out = tmp_path / ("copy" + path.suffix)
+    export_program(path, out)
+    assert out.read_bytes() == path.read_bytes()
+
+
+def test_round_trip_through_the_command_line(tmp_path: Path) -> None:
+    src = SAMPLES / "gcode" / "KB-219 test.gcode"
+    out = tmp_path / "out.gcode"
+    r = _cli("export", str(src), "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert out.read_bytes() == src.read_bytes()
+
+
+_COORD = re.compile(r"(?i)([XYZIJK])\s*[-+]?\d*\.?\d*")
+
+
+def _strip_coords(line: str) -> str:
+    return _COORD.sub(lambda m: m.group(1).upper(), line)
+
+
+def _check_corrected(src: Path, tmp_path: Path, pick: np.ndarray, rng: np.random.Generator) -> None:
+    prog = read_program(src)
+    n = prog.n_commands
+    corr = np.zeros((n, 3))
+    corr[pick] = rng.uniform(-0.05, 0.05, size=(len(pick), 3))
+    corr = np.round(corr, 3)
+    csv = tmp_path / "corr.csv"
+    csv.write_text(write_corrections(corr))
+    out = tmp_path / ("out" + src.suffix)
+    export_program(src, out, corrections_path=csv, min_decimals=3)
+    new = read_program(out)
+    assert new.n_commands == n
+    # corrected commands moved by their correction, every other end point stayed
+    expect = prog.moves.end_mm.copy()
+    expect[prog.command_moves] += corr
+    tol = 0.5e-3 * prog.moves.unit_mm[:, None] + 1e-9
+    assert np.all(np.abs(new.moves.end_mm - expect) <= tol)
+    # only coordinate words changed: line count, and every line equal once numbers are removed
+    a = prog.text.split("\n")
+    b = new.text.split("\n")
+    assert len(a) == len(b)
+    changed = [i + 1 for i, (x, y) in enumerate(zip(a, b, strict=True)) if x != y]
+    assert changed, "nothing was rewritten"
+    for ln in changed:
+        x, y = a[ln - 1], b[ln - 1]
+        assert _strip_coords(x).replace(" ", "") == _strip_coords(y).replace(" ", "") or \
+            set(_strip_coords(y).replace(" ", "")) >= set(_strip_coords(x).replace(" ", "")), (x, y)
+    cmd_lines = set(prog.command_line[pick].tolist())
+    # a changed line is a corrected command or the block right after one (absorbing the change)
+    after = {int(prog.moves.line[min(i + 1, len(prog.moves) - 1)]) for i in prog.command_moves[pick]}
+    assert set(changed) <= cmd_lines | after
+
+
+def test_corrections_absolute_program(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    src = SAMPLES / "contour" / "compass.ngc"
+    n = read_program(src).n_commands
+    _check_corrected(src, tmp_path, rng.choice(n, size=200, replace=False), rng)
+
+
+def test_corrections_inch_program(tmp_path: Path) -> None:
+    rng = np.random.default_rng(2)
+    src = SAMPLES / "contour" / "vcarve.ngc"
+    n = read_program(src).n_commands
+    _check_corrected(src, tmp_path, rng.choice(n, size=100, replace=False), rng)
+
+
+def test_corrections_incremental_program(tmp_path: Path) -> None:
+    rng = np.random.default_rng(3)
+    src = OWN / "square-incremental.nc"
+    _check_corrected(src, tmp_path, np.array([1, 2, 3]), rng)
+    out = tmp_path / ("out" + src.suffix)
+    text = out.read_text()
+    # the G91 block after the corrected one absorbs the change; the final close is where it was
+    assert read_program(out).moves.end_mm[-2].tolist() == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)
+    assert "G91" in text
+
+
+def test_correction_of_modal_axis_inserts_the_word(tmp_path: Path) -> None:
+    src = OWN / "square.ngc"
+    corr = np.zeros((read_program(src).n_commands, 3))
+    corr[1] = [0.012, 0.0, 0.0]  # G1 X50 -> X50.012 ; the next block "G1 Y50" must keep X50
+    csv = tmp_path / "c.csv"
+    csv.write_text(write_corrections(corr))
+    out = tmp_path / "o.ngc"
+    export_program(src, out, corrections_path=csv)
+    lines = out.read_text().splitlines()
+    assert lines[4] == "G1 X50.012 F3000"
+    assert lines[5] == "G1 Y50 X50.000"
+    assert read_program(out).moves.end_mm[3].tolist() == [50.0, 50.0, 0.0]
+
+
+def test_corrections_with_unknown_k_fail_and_leave_nothing(tmp_path: Path) -> None:
+    csv = tmp_path / "c.csv"
+    csv.write_text("k,dx,dy,dz\n0,0.01,0,0\n99999,0.01,0,0\n")
+    out = tmp_path / "o.ngc"
+    r = _cli("export", str(OWN / "square.ngc"), "--out", str(out), "--corrections", str(csv))
+    assert r.returncode == 1
+    assert r.stderr.count("\n") == 1
+    assert "c.csv:3:" in r.stderr and "k=99999" in r.stderr
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == [csv]
+
+
+def test_export_refuses_to_overwrite_input(tmp_path: Path) -> None:
+    src = tmp_path / "a.ngc"
+    src.write_bytes((OWN / "square.ngc").read_bytes())
+    r = _cli("export", str(src), "--out", str(src))
+    assert r.returncode == 1
+    assert "input" in r.stderr
+    assert src.read_bytes() == (OWN / "square.ngc").read_bytes()
+
+
+def test_corrections_on_unsupported_program_are_refused(tmp_path: Path) -> None:
+    csv = tmp_path / "c.csv"
+    csv.write_text("k,dx,dy,dz\n0,0.01,0,0\n")
+    r = _cli("export", str(SAMPLES / "gcode" / "mmount.ngc"), "--out", str(tmp_path / "o.ngc"), "--corrections", str(csv))
+    assert r.returncode == 1
+    assert "mmount.ngc:30:" in r.stderr

@@ -1,0 +1,157 @@
+"""G-code reader on real CAM output and on constructed cases."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ilcnc.errors import ProgramError, UnsupportedError
+from ilcnc.program import read_program
+from ilcnc.program.gcode import read_gcode
+from ilcnc.program.model import FLAG_MACHINE, MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, STYLE_LITERAL
+
+from .conftest import OWN, SAMPLES, sample_files
+
+GCODE_SAMPLES = [p for p in sample_files("gcode", "contour", "interp", "large")]
+
+
+def _read(text: str, name: str = "t.ngc"):
+    return read_gcode(Path(name), text.encode("latin-1"))
+
+
+@pytest.mark.parametrize("path", GCODE_SAMPLES, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_every_sample_reads_and_spans_hold_the_numbers(path: Path) -> None:
+    prog = read_program(path)
+    assert prog.text.encode("latin-1") == path.read_bytes()
+    mv = prog.moves
+    idx = prog.command_moves
+    # every command's coordinate spans hold exactly the number that gives its end point
+    for a in range(3):
+        ws, we = mv.word_start[idx, a], mv.word_end[idx, a]
+        has = ws >= 0
+        for i, s, e in zip(idx[has][:2000], ws[has][:2000], we[has][:2000], strict=True):
+            assert mv.word_style[i, a] & STYLE_LITERAL
+            val = float(prog.text[s:e].replace(" ", ""))
+            unit = mv.unit_mm[i]
+            if mv.word_incremental[i, a]:
+                assert val * unit == pytest.approx(mv.end_mm[i, a] - mv.start_mm[i, a], abs=1e-9)
+            else:
+                assert val * unit + mv.offset_mm[i, a] == pytest.approx(mv.end_mm[i, a], abs=1e-9)
+    # consecutive moves chain
+    if len(mv) > 1:
+        assert np.allclose(mv.start_mm[1:], mv.end_mm[:-1])
+
+
+def test_cam_sample_counts() -> None:
+    prog = read_program(SAMPLES / "contour" / "locket_outside.ngc")
+    text = prog.text.splitlines()
+    # independent count: lines with a G1 (or modal continuation) holding X/Y/Z
+    assert prog.n_commands == 10206
+    assert prog.units == "mm"
+    assert all(text[line - 1].strip() for line in prog.command_line[:100])
+
+
+def test_inch_program_is_converted_to_mm() -> None:
+    prog = read_program(SAMPLES / "gcode" / "circle-inch.gcode")
+    assert prog.units == "inch"
+    assert np.all(prog.moves.unit_mm == 25.4)
+
+
+def test_modal_bare_lines_and_feed_only_blocks() -> None:
+    prog = _read("G21 G90\nG0 X0 Y0\nG01 F100\nX10\nY5 F200\nG1 F300\nZ-1\nM2\n")
+    assert prog.n_commands == 3
+    assert prog.command_line.tolist() == [4, 5, 7]
+    assert prog.command_feed_mm_min.tolist() == [100.0, 200.0, 300.0]
+    assert prog.command_end_mm.tolist() == [[10, 0, 0], [10, 5, 0], [10, 5, -1]]
+
+
+def test_comments_block_delete_percent_and_words_with_spaces() -> None:
+    prog = _read("%\n(header) ; both\nN10 G21 G90 ;x\n/G0 X1 Y1\nG00 Z 5.0000\nG1 X 2 F 100.0000(Penetrate)\nN20X3Y+4\n%\n")
+    assert prog.command_end_mm.tolist() == [[2, 1, 5], [3, 4, 5]]
+
+
+def test_incremental_and_arc_centres() -> None:
+    prog = _read("G21 G90 G17\nG0 X0 Y0\nG91 G1 X10 F100\nY10\nG90 G2 X20 Y0 I0 J-10\nG3 X0 Y0 R10\nM2\n")
+    mv = prog.moves
+    assert mv.kind.tolist() == [MOVE_RAPID, MOVE_LINE, MOVE_LINE, MOVE_ARC_CW, MOVE_ARC_CCW]
+    assert mv.end_mm[2].tolist() == [10, 10, 0]
+    assert mv.center_mm[3, :2].tolist() == [10, 0]
+    assert mv.center_mm[4, :2].tolist() == pytest.approx([10, 0])
+    assert mv.word_incremental[1].tolist() == [True, False, False]
+
+
+def test_g18_arc_r_and_helix() -> None:
+    prog = _read("G21 G18\nG0 X0 Y0 Z0\nG2 X10 Z0 R5 Y3 F100\nM2\n")
+    c = prog.moves.center_mm[1]
+    assert c[0] == pytest.approx(5.0) and c[2] == pytest.approx(0.0)
+
+
+def test_offsets_g92_g53_g54() -> None:
+    prog = _read("G21 G90\nG0 X7.6\nG92 X0\nG1 X5 F100\nG53 G1 X5\nG10 L2 P2 X100\nG55 G1 X1\nM2\n")
+    mv = prog.moves
+    assert mv.end_mm[1, 0] == pytest.approx(12.6)
+    assert (mv.end_mm[1] - mv.offset_mm[1])[0] == pytest.approx(5.0)
+    assert mv.flags[2] & FLAG_MACHINE
+    assert mv.end_mm[2, 0] == pytest.approx(5.0)
+    assert mv.command[2] == -1  # G53 moves are never corrected
+    assert mv.end_mm[3, 0] == pytest.approx(101.0 + 7.6)
+
+
+def test_parameters_and_expressions() -> None:
+    prog = _read("G21\n#1=2\n#<d>=[#1*3]\nG1 X[#<d>+1] Y#1 F[60*2]\nG1 X[sin[30]*2] Y[atan[1]/[1]]\nM2\n")
+    mv = prog.moves
+    assert mv.end_mm[0, :2].tolist() == pytest.approx([7.0, 2.0])
+    assert mv.end_mm[1, :2].tolist() == pytest.approx([1.0, 45.0])
+    assert mv.command[0] == -1  # parameter-valued words are not rewritable
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "needle"),
+    [
+        ("G21\nG1 X1 E5 F100\n", 2, "unknown word"),
+        ("G21\nG1 X1 F100\nG1 X(2\n", 3, "X word without a number"),
+        ("G21\nG1 X1 F100 (open\n", 2, "not closed"),
+        ("G21\nG1 X F100\n", 2, ""),
+        ("G21\nG1 X1 X2 F100\n", 2, "twice"),
+        ("G21\nG1 X[1+ F100\n", 2, ""),
+        ("G21\nG12345 X1\n", 2, "unknown G code"),
+    ],
+)
+def test_syntax_errors_name_the_line(text: str, line: int, needle: str) -> None:
+    with pytest.raises(ProgramError) as info:
+        _read(text)
+    assert info.value.line == line
+    assert needle in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_unsupported_constructs_are_reported_never_misread() -> None:
+    prog = read_program(SAMPLES / "gcode" / "mmount.ngc")
+    with pytest.raises(UnsupportedError) as info:
+        prog.require_complete()
+    assert info.value.line == 30
+    assert "O-word" in str(info.value)
+
+
+def test_refused_blocks_match_linuxcnc_messages() -> None:
+    # LinuxCNC refuses both of these programs too (checked with rs274)
+    p = read_program(SAMPLES / "contour" / "SheepTile-v2.nc")
+    assert p.unsupported is not None and p.unsupported[0] == 14 and "zero feed" in p.unsupported[1]
+    p = read_program(SAMPLES / "gcode" / "Circle_Diamond_Square_Calibration.gcode")
+    assert p.unsupported is not None and p.unsupported[0] == 624
+
+
+def test_binary_and_empty_files() -> None:
+    with pytest.raises(ProgramError, match="binary"):
+        read_gcode(Path("b.nc"), bytes(range(256)) * 10)
+    with pytest.raises(ProgramError, match="empty"):
+        read_gcode(Path("e.nc"), b"  \n\n")
+
+
+def test_own_samples_read() -> None:
+    for p in sorted(OWN.glob("*.n*")):
+        prog = read_program(p)
+        prog.require_complete()
+        assert prog.n_commands > 0
