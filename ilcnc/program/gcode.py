@@ -459,10 +459,12 @@ class _Interpreter:
                 raise self.error(line, "axis words without an active motion mode (G0/G1/G2/G3)")
             if any(a in letters for a in "ABC"):
                 if not self.axis_warned:
-                    self.warnings.append(f"line {line}: rotary A/B/C words are read but not modelled; such moves are never corrected")
+                    self.warnings.append(
+                        f"line {line}: rotary A/B/C words are read but not modelled; such moves are never corrected"
+                    )
                     self.axis_warned = True
             self._motion(st.motion, letters, axis_words, line, blk, machine)
-        elif motion_codes and motion_codes[0] in (20, 30) and ("I" in letters or "J" in letters or "K" in letters or "R" in letters):
+        elif motion_codes and motion_codes[0] in (20, 30) and any(c in letters for c in "IJKR"):
             # full circle in place (no axis words): end point = start point
             self._motion(st.motion, letters, axis_words, line, blk, machine)
         elif machine and not has_axis:
