@@ -144,3 +144,16 @@ def test_corrections_on_unsupported_program_are_refused(tmp_path: Path) -> None:
     r = _cli("export", str(SAMPLES / "gcode" / "mmount.ngc"), "--out", str(tmp_path / "o.ngc"), "--corrections", str(csv))
     assert r.returncode == 1
     assert "mmount.ngc:30:" in r.stderr
+
+
+def test_rewritten_numbers_keep_the_source_spelling(tmp_path: Path) -> None:
+    src = tmp_path / "s.nc"
+    src.write_text("G21 G90\nG0 X0 Y0\nG1 X10.1234 Y+5. F100\nX-.5000 Y2\nM2\n")
+    corr = np.zeros((2, 3))
+    corr[0] = [0.001, 0.002, 0.0]
+    corr[1] = [0.0001, 0.0, 0.0]
+    csv = tmp_path / "c.csv"
+    csv.write_text(write_corrections(corr))
+    out = tmp_path / "o.nc"
+    export_program(src, out, corrections_path=csv, min_decimals=3)
+    assert out.read_text().splitlines()[2:4] == ["G1 X10.1244 Y+5.002 F100", "X-.4999 Y2"]

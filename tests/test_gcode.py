@@ -39,6 +39,15 @@ def test_every_sample_reads_and_spans_hold_the_numbers(path: Path) -> None:
                 assert val * unit == pytest.approx(mv.end_mm[i, a] - mv.start_mm[i, a], abs=1e-9)
             else:
                 assert val * unit + mv.offset_mm[i, a] == pytest.approx(mv.end_mm[i, a], abs=1e-9)
+    # arc centre words (I/J/K relative to the start) hold the centre
+    arcs = np.flatnonzero((mv.kind >= MOVE_ARC_CW) & np.any(mv.center_start >= 0, axis=1))
+    for i in arcs[:2000]:
+        for a in range(3):
+            s, e = mv.center_start[i, a], mv.center_end[i, a]
+            if s < 0 or not mv.center_incremental[i, a]:
+                continue
+            val = float(prog.text[s:e].replace(" ", ""))
+            assert val * mv.unit_mm[i] == pytest.approx(mv.center_mm[i, a] - mv.start_mm[i, a], abs=1e-9)
     # consecutive moves chain
     if len(mv) > 1:
         assert np.allclose(mv.start_mm[1:], mv.end_mm[:-1])

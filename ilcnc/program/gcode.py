@@ -19,7 +19,10 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
+from itertools import chain
 from pathlib import Path
+
+import numpy as np
 
 from ilcnc.errors import ProgramError
 from ilcnc.program.expr import ExprError, Parameters, read_param_ref, read_value
@@ -40,6 +43,7 @@ from ilcnc.program.model import (
     STYLE_NO_LEADING_ZERO,
     STYLE_PLUS,
     STYLE_TRAILING_DOT,
+    MoveTable,
     MoveTableBuilder,
     Program,
     decode_source,
@@ -56,6 +60,17 @@ _CENTER_INDEX = {"I": 0, "J": 1, "K": 2}
 _LITERAL = re.compile(r"([+-]?)[ \t]*(\d*)(\.?)(\d*)")
 _SIMPLE_LINE = re.compile(r"[ \t]*(?:[A-DF-NP-Za-df-np-z][ \t]*[+-]?[ \t]*(?:\d+\.?\d*|\.\d+)[ \t]*)*")
 _SIMPLE_WORD = re.compile(r"([A-DF-NP-Za-df-np-z])[ \t]*([+-]?)[ \t]*(\d*)(\.?)(\d*)")
+# The common CAM block: [N..] [G0|G1] [X..] [Y..] [Z..] [F..] in this order, literal numbers.
+_NUM = r"([-+]?(?:\d+\.?\d*|\.\d+))"
+_FAST_LINE = re.compile(
+    r"[ \t]*(?:[Nn]\d+[ \t]*)?(?:[Gg]0*([0-3])(?![\d.])[ \t]*)?"
+    rf"(?:[Xx][ \t]*{_NUM}[ \t]*)?(?:[Yy][ \t]*{_NUM}[ \t]*)?(?:[Zz][ \t]*{_NUM}[ \t]*)?"
+    rf"(?:[Ii][ \t]*{_NUM}[ \t]*)?(?:[Jj][ \t]*{_NUM}[ \t]*)?(?:[Kk][ \t]*{_NUM}[ \t]*)?"
+    rf"(?:[Rr][ \t]*{_NUM}[ \t]*)?"
+    r"(?:[Ff][ \t]*(\d+\.?\d*|\.\d+)[ \t]*)?\r?"
+)
+_FAST_MOTION = {"0": 0, "1": 10, "2": 20, "3": 30}
+_MIN_FAST_RUN = 16  # shorter runs cost less through the general interpreter than a numpy pass
 _O_WORD = re.compile(r"[Oo]\s*(<[^>]*>|\d+|#\d+|\[)")
 _O_KEYWORDS = (
     "sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
@@ -630,6 +645,162 @@ class _Interpreter:
             return
         raise self.error(line, f"motion mode G{motion / 10:g} is not a motion")
 
+    def fast_run(self, run: list[re.Match[str]], groups: list[tuple[str, ...]], first_line: int, base: int,
+                 lines: list[str]) -> int | None:
+        """Interpret consecutive plain blocks ``[N] [G0-3] [X Y Z] [I J K | R] [F]`` with numpy.
+
+        Per block this costs one regex match and a few list operations; the
+        modal state (motion mode, feed, unmentioned axes) is carried forward
+        with vectorised forward fills and arcs are solved as arrays. Returns
+        the text offset after the run, or None when a block needs the general
+        interpreter (which then reports the problem with its line).
+        """
+        st = self.st
+        count = len(run)
+        regs = np.fromiter(
+            chain.from_iterable(chain.from_iterable(m.regs[1:10] for m in run)), dtype=np.int64, count=count * 18
+        ).reshape(count, 9, 2)
+        # X Y Z I J K R F as one flat float conversion
+        nums = np.array([x or "nan" for x in chain.from_iterable(g[1:9] for g in groups)], dtype=np.float64)
+        nums = nums.reshape(count, 8)
+        vals = nums[:, 0:3]
+        cvals = nums[:, 3:6]
+        rvals = nums[:, 6]
+        fcol = nums[:, 7]
+        has = ~np.isnan(vals)
+        hasc = ~np.isnan(cvals)
+        hasr = ~np.isnan(rvals)
+        gcol = np.array([_FAST_MOTION.get(g[0], -1) for g in groups], dtype=np.int64)
+        motion = _ffill(gcol.astype(np.float64), gcol >= 0, float(st.motion)).astype(np.int64)
+        feed = _ffill(fcol, ~np.isnan(fcol), st.feed)
+        is_arc = (motion >= 20) & (has.any(axis=1) | hasc.any(axis=1) | hasr)
+        has_move = has.any(axis=1) | is_arc
+        a1, a2, lin = _PLANE_AXES[st.plane]
+        # what the general interpreter must judge: IJK off the plane, R with IJK, centre-less arcs,
+        # centre/radius words on straight moves
+        plane_ok = ~hasc[:, lin] & ~(hasr & (hasc[:, a1] | hasc[:, a2]))
+        arcs_ok = np.where(is_arc, plane_ok & (hasr | hasc[:, a1] | hasc[:, a2]), ~(hasc.any(axis=1) | hasr))
+        if not arcs_ok.all():
+            return None
+        line_no = np.arange(first_line, first_line + count, dtype=np.int64)
+        if np.any(has_move & (motion >= 10) & (feed <= 0)):
+            bad = int(np.flatnonzero(has_move & (motion >= 10) & (feed <= 0))[0])
+            if bad > 0:
+                done = self.fast_run(run[:bad], groups[:bad], first_line, base, lines)
+                if done is None:
+                    return None
+            raise _Unsupported(first_line + bad, f"G{int(motion[bad]) // 10} with zero feed rate (no F word before)")
+        unit = st.unit
+        off = np.array(st.offset())
+        pos0 = np.array(st.pos)
+        if st.absolute:
+            target = np.where(has, vals * unit + off, np.nan)
+            ends = np.empty_like(target)
+            for a in range(3):
+                ends[:, a] = _ffill(target[:, a], has[:, a], pos0[a])
+        else:
+            ends = pos0 + np.cumsum(np.where(has, vals * unit, 0.0), axis=0)
+        sel = np.flatnonzero(has_move)
+        m = sel.size
+        center = np.full((m, 3), np.nan)
+        if m:
+            mv_end = ends[sel]
+            mv_start = np.vstack([pos0[None, :], mv_end[:-1]])
+            arc = is_arc[sel]
+            if arc.any():
+                center = self._fast_centers(mv_start, mv_end, cvals[sel], hasc[sel], rvals[sel], motion[sel], arc, off)
+                if center is None:
+                    return None
+        # all checks passed: commit the run
+        lens = np.fromiter((len(lines[first_line - 1 + r]) + 1 for r in range(count)), dtype=np.int64, count=count)
+        starts = base + np.concatenate(([0], np.cumsum(lens)[:-1]))
+        new_base = base + int(lens.sum())
+        st.motion = int(motion[-1])
+        st.feed = float(feed[-1])
+        if m:
+            mot = motion[sel]
+            kind = np.select([mot == 0, mot == 10, mot == 20], [MOVE_RAPID, MOVE_LINE, MOVE_ARC_CW], MOVE_ARC_CCW)
+            kind = kind.astype(np.int8)
+            is_line = kind == MOVE_LINE
+            cmd = np.where(is_line, self.builder.n_commands + np.cumsum(is_line) - 1, -1).astype(np.int32)
+            line_start = starts[sel][:, None]
+            present = has[sel]
+            wr = regs[sel, 1:4, :]
+            cpresent = hasc[sel] & arc[:, None]
+            cr = regs[sel, 4:7, :]
+            last_end = regs[sel, :, 1].max(axis=1)
+            flags = np.full(m, FLAG_CUTTER_COMP if st.cutter_comp else 0, dtype=np.int16)
+            self.builder.add_table(MoveTable(
+                kind=kind,
+                line=line_no[sel].astype(np.int32),
+                start_mm=mv_start,
+                end_mm=mv_end,
+                center_mm=center,
+                offset_mm=np.broadcast_to(off, (m, 3)).copy(),
+                plane=np.full(m, st.plane, dtype=np.int8),
+                turns=np.ones(m, dtype=np.int16),
+                feed_mm_min=np.where(kind == MOVE_RAPID, np.nan, feed[sel] * unit),
+                unit_mm=np.full(m, unit),
+                command=cmd,
+                flags=flags,
+                word_start=np.where(present, line_start + wr[:, :, 0], -1),
+                word_end=np.where(present, line_start + wr[:, :, 1], -1),
+                word_decimals=np.zeros((m, 3), dtype=np.int8),
+                word_style=np.where(present, STYLE_LITERAL, 0).astype(np.int8),
+                word_incremental=present & (not st.absolute),
+                center_start=np.where(cpresent, line_start + cr[:, :, 0], -1),
+                center_end=np.where(cpresent, line_start + cr[:, :, 1], -1),
+                center_decimals=np.zeros((m, 3), dtype=np.int8),
+                center_style=np.where(cpresent, STYLE_LITERAL, 0).astype(np.int8),
+                center_incremental=cpresent & (not st.arc_absolute),
+                insert_at=(starts[sel] + last_end).astype(np.int64),
+            ))
+            st.pos = [float(x) for x in mv_end[-1]]
+        return new_base
+
+    def _fast_centers(self, start: np.ndarray, end: np.ndarray, cvals: np.ndarray, hasc: np.ndarray, rvals: np.ndarray,
+                      motion: np.ndarray, arc: np.ndarray, off: np.ndarray) -> np.ndarray | None:
+        """Arc centres of a run (NaN for straight moves); None if an arc needs the general interpreter."""
+        st = self.st
+        unit = st.unit
+        a1, a2, _lin = _PLANE_AXES[st.plane]
+        m = start.shape[0]
+        center = np.full((m, 3), np.nan)
+        use_r = arc & ~np.isnan(rvals)
+        use_c = arc & ~use_r
+        for ax in (a1, a2):
+            v = np.where(hasc[:, ax], cvals[:, ax] * unit, 0.0)
+            if st.arc_absolute:
+                c = np.where(hasc[:, ax], v + off[ax], start[:, ax])
+            else:
+                c = start[:, ax] + v
+            center[:, ax] = np.where(use_c, c, np.nan)
+        if use_c.any():
+            r0 = np.hypot(start[:, a1] - center[:, a1], start[:, a2] - center[:, a2])[use_c]
+            r1 = np.hypot(end[:, a1] - center[:, a1], end[:, a2] - center[:, a2])[use_c]
+            if np.any(r0 < 1e-9) or np.any((np.abs(r1 - r0) > 0.05) & (np.abs(r1 - r0) > 1e-3 * r0)):
+                return None
+        if use_r.any():
+            r = rvals * unit
+            dx = end[:, a1] - start[:, a1]
+            dy = end[:, a2] - start[:, a2]
+            d = np.hypot(dx, dy)
+            if np.any(use_r & (d < 1e-9)):
+                return None
+            half = d / 2.0
+            ar = np.abs(r)
+            short = use_r & (ar < half)
+            if np.any(short & (half - ar > 0.0127) & (half - ar > 1e-3 * half)):
+                return None
+            ar = np.where(short, half, ar)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                h = np.sqrt(np.maximum(ar * ar - half * half, 0.0))
+                ux, uy = dx / d, dy / d
+            sgn = np.where(motion == 20, -1.0, 1.0) * np.where(r >= 0, 1.0, -1.0)
+            center[:, a1] = np.where(use_r, start[:, a1] + dx / 2 + sgn * h * -uy, center[:, a1])
+            center[:, a2] = np.where(use_r, start[:, a2] + dy / 2 + sgn * h * ux, center[:, a2])
+        return center
+
     def _arc(self, motion: int, letters: dict[str, Word], axis_words: list[Word | None], target: list[float],
              off: tuple[float, float, float], line: int, blk: Block, flags: int) -> None:
         st = self.st
@@ -697,6 +868,13 @@ class _Interpreter:
                   cwords=cwords if rw is None else None, insert_at=blk.end_offset)
 
 
+def _ffill(values: np.ndarray, valid: np.ndarray, initial: float) -> np.ndarray:
+    """Forward-fill ``values`` where ``valid`` is False, starting from ``initial``."""
+    idx = np.where(valid, np.arange(values.shape[0]), -1)
+    np.maximum.accumulate(idx, out=idx)
+    return np.where(idx >= 0, values[np.maximum(idx, 0)], initial)
+
+
 def _arc_length(start: list[float], end: list[float], center: list[float], a1: int, a2: int, lin: int, cw: bool,
                 turns: int) -> float:
     r = math.hypot(start[a1] - center[a1], start[a2] - center[a2])
@@ -761,31 +939,72 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
     unsupported: tuple[int, str] | None = None
     percent_count = 0
     running = True
-    base = 0
     lex = lexer.lex
     execute = interp.execute
-    for lineno, raw in enumerate(text.split("\n"), start=1):
-        s = raw[:-1] if raw.endswith("\r") else raw
-        blk = lex(s, base, lineno)
-        base += len(raw) + 1
-        if blk.percent:
-            percent_count += 1
-            if percent_count >= 2:
+    fast = _FAST_LINE.fullmatch
+    lines = text.split("\n")
+    n = len(lines)
+    i = 0
+    base = 0
+    while i < n:
+        # a run of plain CAM blocks is interpreted in one vectorised step
+        if running and interp.st.feed_mode == 940:
+            motion = interp.st.motion
+            j = i
+            run: list[re.Match[str]] = []
+            run_groups: list[tuple[str, ...]] = []
+            while j < n:
+                m = fast(lines[j])
+                if m is None:
+                    break
+                g = m.groups("")
+                if g[0]:
+                    motion = _FAST_MOTION[g[0]]
+                elif motion not in (0, 10, 20, 30) and (g[1] or g[2] or g[3] or g[4] or g[5] or g[6] or g[7]):
+                    break
+                run.append(m)
+                run_groups.append(g)
+                j += 1
+            if len(run) >= _MIN_FAST_RUN or (run and j >= n):
+                try:
+                    new_base = interp.fast_run(run, run_groups, i + 1, base, lines)
+                except _Unsupported as exc:
+                    unsupported = (exc.line, exc.problem)
+                    running = False
+                    lexer.lenient = True
+                    new_base = base + sum(len(x) + 1 for x in lines[i:j])
+                if new_base is not None:
+                    base = new_base
+                    i = j
+                    continue
+            stop = i + max(len(run), 1)
+        else:
+            stop = i + 1
+        while i < stop:
+            raw = lines[i]
+            lineno = i + 1
+            i += 1
+            s = raw[:-1] if raw.endswith("\r") else raw
+            blk = lex(s, base, lineno)
+            base += len(raw) + 1
+            if blk.percent:
+                percent_count += 1
+                if percent_count >= 2:
+                    running = False
+                    lexer.lenient = True
+                continue
+            if not running:
+                continue
+            try:
+                execute(blk)
+            except _Unsupported as exc:
+                unsupported = (exc.line, exc.problem)
                 running = False
                 lexer.lenient = True
-            continue
-        if not running:
-            continue
-        try:
-            execute(blk)
-        except _Unsupported as exc:
-            unsupported = (exc.line, exc.problem)
-            running = False
-            lexer.lenient = True
-            continue
-        if interp.ended:
-            running = False
-            lexer.lenient = True
+                continue
+            if interp.ended:
+                running = False
+                lexer.lenient = True
     units = interp.st.units_seen or default_units
     dial = dialect or detect_dialect(p, text)
     prog = Program(path=p, text=text, dialect=dial, units=units, moves=interp.builder.build(), name=p.stem,

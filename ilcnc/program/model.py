@@ -142,7 +142,7 @@ class MoveTableBuilder:
     reader fast on programs with hundreds of thousands of blocks.
     """
 
-    __slots__ = ("_cols", "n_commands")
+    __slots__ = ("_chunks", "_cols", "n_commands")
 
     _NAMES = (
         "kind", "line", "start", "end", "center", "offset", "plane", "turns", "feed",
@@ -152,7 +152,23 @@ class MoveTableBuilder:
 
     def __init__(self) -> None:
         self._cols: dict[str, list] = {name: [] for name in self._NAMES}
+        self._chunks: list[MoveTable] = []
         self.n_commands = 0
+
+    def add_table(self, table: MoveTable) -> None:
+        """Append a whole block of moves at once (vectorised readers).
+
+        ``table.command`` must already hold the right command indices
+        (continuing from :attr:`n_commands`); the count is advanced here.
+        """
+        self._flush()
+        self._chunks.append(table)
+        self.n_commands += int(np.count_nonzero(table.command >= 0))
+
+    def _flush(self) -> None:
+        if self._cols["kind"]:
+            self._chunks.append(self._build_lists())
+            self._cols = {name: [] for name in self._NAMES}
 
     def add(
         self,
@@ -214,6 +230,18 @@ class MoveTableBuilder:
 
     def build(self) -> MoveTable:
         """Freeze the collected moves into numpy arrays."""
+        self._flush()
+        if not self._chunks:
+            return self._build_lists()
+        if len(self._chunks) == 1:
+            return self._chunks[0]
+        first = self._chunks[0]
+        return MoveTable(**{
+            name: np.concatenate([getattr(ch, name) for ch in self._chunks])
+            for name in first.__dataclass_fields__
+        })
+
+    def _build_lists(self) -> MoveTable:
         c = self._cols
         m = len(c["kind"])
 

@@ -32,10 +32,11 @@ from ilcnc.program.model import (
     STYLE_LITERAL,
     STYLE_NO_LEADING_ZERO,
     STYLE_PLUS,
+    STYLE_TRAILING_DOT,
     Program,
 )
 
-__all__ = ["Edit", "apply_corrections", "format_number"]
+__all__ = ["Edit", "apply_corrections", "format_number", "spelling"]
 
 _LETTERS = "XYZ"
 _CENTER_LETTERS = "IJK"
@@ -68,6 +69,8 @@ def format_number(value: float, decimals: int, style: int, *, klartext: bool = F
     d = max(0, int(decimals))
     s = f"{abs(value):.{d}f}"
     negative = value < 0 and float(s) != 0.0
+    if d == 0 and style & STYLE_TRAILING_DOT:
+        s += "."
     if style & STYLE_NO_LEADING_ZERO and s.startswith("0.") and d > 0:
         s = s[1:]
     if style & STYLE_COMMA:
@@ -77,6 +80,26 @@ def format_number(value: float, decimals: int, style: int, *, klartext: bool = F
     if klartext or style & STYLE_PLUS:
         return "+" + s
     return s
+
+
+def spelling(number: str) -> tuple[int, int]:
+    """Decimals and ``STYLE_*`` bits of a literal number as written (``+1,50`` -> (2, PLUS|COMMA|LITERAL))."""
+    t = number.replace(" ", "").replace("\t", "")
+    style = STYLE_LITERAL
+    if t.startswith("+"):
+        style |= STYLE_PLUS
+    body = t.lstrip("+-")
+    sep = "," if "," in body else "."
+    if sep == ",":
+        style |= STYLE_COMMA
+    if body.startswith(sep):
+        style |= STYLE_NO_LEADING_ZERO
+    if sep in body:
+        _ip, fp = body.split(sep, 1)
+        if not fp:
+            style |= STYLE_TRAILING_DOT
+        return len(fp), style
+    return 0, style
 
 
 def _parse(s: str) -> float:
@@ -222,7 +245,8 @@ def _rewrite_move(
                     program.path, line,
                     f"the {_LETTERS[a]} word holds a parameter or an expression and cannot absorb a correction",
                 )
-            dec = max(int(mv.word_decimals[i, a]), min_decimals)
+            src_dec, style = spelling(text[ws:we])
+            dec = max(src_dec, min_decimals)
             s = format_number(new_val, dec, style, klartext=klartext)
             edits.append(Edit(ws, we, s, line))
             written = _parse(s)
@@ -235,8 +259,9 @@ def _rewrite_move(
             pos = int(mv.insert_at[i])
             if pos < 0:
                 raise CorrectionError(program.path, line, f"no place to insert a {_LETTERS[a]} word in this block")
-            dec = _exact_decimals(new_val, max(min_decimals, int(mv.word_decimals[i].max())))
-            s = format_number(new_val, dec, STYLE_COMMA if _uses_comma(mv, i) else 0, klartext=klartext)
+            block_dec, block_style = _block_spelling(text, mv, i)
+            dec = _exact_decimals(new_val, max(min_decimals, block_dec))
+            s = format_number(new_val, dec, block_style & (STYLE_COMMA | STYLE_NO_LEADING_ZERO), klartext=klartext)
             letter = _LETTERS[a]
             if klartext:
                 word = (" I" if inc else " ") + letter + s
@@ -255,6 +280,7 @@ def _rewrite_center(program: Program, i: int, start_real: NDArray[np.float64], k
                     edits: list[Edit]) -> None:
     """Keep an arc's centre where it was when its start moved (incremental centre words)."""
     mv = program.moves
+    text = program.text
     unit = float(mv.unit_mm[i])
     line = int(mv.line[i])
     for a in range(3):
@@ -269,7 +295,8 @@ def _rewrite_center(program: Program, i: int, start_real: NDArray[np.float64], k
                                   f"the arc centre word {_CENTER_LETTERS[a]} holds a parameter and cannot be kept")
         ce = int(mv.center_end[i, a])
         new_val = (mv.center_mm[i, a] - start_real[a]) / unit
-        dec = max(int(mv.center_decimals[i, a]), min_decimals)
+        src_dec, style = spelling(text[cs:ce])
+        dec = max(src_dec, min_decimals)
         edits.append(Edit(cs, ce, format_number(new_val, dec, style, klartext=klartext), line))
 
 
@@ -286,8 +313,16 @@ def _block_incremental(mv: object, i: int) -> bool:
     return bool(np.any(mv.word_incremental[i]))  # type: ignore[attr-defined]
 
 
-def _uses_comma(mv: object, i: int) -> bool:
-    return bool(np.any(mv.word_style[i] & STYLE_COMMA))  # type: ignore[attr-defined]
+def _block_spelling(text: str, mv: object, i: int) -> tuple[int, int]:
+    """Most decimals and the style of the literal coordinate words of move ``i``."""
+    dec, style = 0, 0
+    for a in range(3):
+        ws = int(mv.word_start[i, a])  # type: ignore[attr-defined]
+        if ws >= 0 and mv.word_style[i, a] & STYLE_LITERAL:  # type: ignore[attr-defined]
+            d, st = spelling(text[ws:int(mv.word_end[i, a])])  # type: ignore[attr-defined]
+            dec = max(dec, d)
+            style |= st
+    return dec, style
 
 
 def _line_start(text: str, pos: int) -> int:
