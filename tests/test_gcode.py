@@ -25,7 +25,12 @@ def _read(text: str, name: str = "t.ngc"):
 def test_every_sample_reads_and_spans_hold_the_numbers(path: Path) -> None:
     prog = read_program(path)
     assert prog.text.encode("latin-1") == path.read_bytes()
+    prog.resolve_spans()
     mv = prog.moves
+    assert not np.any(mv.word_start == -2) and not np.any(mv.insert_at == -2)
+    # every command with a coordinate word has its span
+    idx_all = prog.command_moves
+    assert np.all(np.any(mv.word_start[idx_all] >= 0, axis=1))
     idx = prog.command_moves
     # every command's coordinate spans hold exactly the number that gives its end point
     for a in range(3):

@@ -23,6 +23,7 @@ file byte for byte. ``-1`` marks an axis without a word in that block.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,6 +53,9 @@ STYLE_COMMA = 2  # comma decimal separator
 STYLE_NO_LEADING_ZERO = 4  # '.5' instead of '0.5'
 STYLE_TRAILING_DOT = 8  # '75.' (no decimals but a dot)
 STYLE_LITERAL = 16  # the word is a plain number (rewritable); else parameter/expression
+
+# A span the reader left to be found on demand (Program.resolve_spans)
+SPAN_LAZY = -2
 
 PLANE_XY = 17
 PLANE_XZ = 18
@@ -306,7 +310,29 @@ class Program:
     name: str = ""
     warnings: list[str] = field(default_factory=list)
     unsupported: tuple[int, str] | None = None
+    span_resolver: Callable[[Program, NDArray[np.int64]], None] | None = None
     _commands: NDArray[np.int64] | None = None
+    _line_starts: NDArray[np.int64] | None = None
+
+    def resolve_spans(self, indices: NDArray[np.int64] | list[int] | None = None) -> None:
+        """Fill in word spans the reader left for later (``SPAN_LAZY``), for some or all moves."""
+        if self.span_resolver is None:
+            return
+        mv = self.moves
+        if indices is None:
+            idx = np.flatnonzero(mv.insert_at == SPAN_LAZY)
+        else:
+            idx = np.asarray(indices, dtype=np.int64)
+            idx = idx[mv.insert_at[idx] == SPAN_LAZY]
+        if idx.size:
+            self.span_resolver(self, idx)
+
+    def line_start(self, line: int) -> int:
+        """Character offset where 1-based ``line`` starts."""
+        if self._line_starts is None:
+            t = np.frombuffer(self.text.encode("latin-1"), dtype=np.uint8)
+            self._line_starts = np.concatenate(([0], np.flatnonzero(t == 10) + 1))
+        return int(self._line_starts[line - 1])
 
     def require_complete(self) -> None:
         """Raise :class:`UnsupportedError` if the interpreter stopped at a construct it does not model.

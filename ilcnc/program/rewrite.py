@@ -218,6 +218,7 @@ def _rewrite_move(
     inserts: dict[int, list[tuple[int, str, int]]],
 ) -> NDArray[np.float64]:
     """Rewrite the words of move ``i`` so it ends at ``want`` from ``start_real``; return where it ends."""
+    program.resolve_spans([i])
     mv = program.moves
     text = program.text
     line = int(mv.line[i])
