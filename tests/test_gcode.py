@@ -10,7 +10,7 @@ import pytest
 from ilcnc.errors import ProgramError, UnsupportedError
 from ilcnc.program import read_program
 from ilcnc.program.gcode import read_gcode
-from ilcnc.program.model import FLAG_MACHINE, MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, STYLE_LITERAL
+from ilcnc.program.model import FLAG_MACHINE, FLAG_REPEATED, MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, STYLE_LITERAL
 
 from .conftest import OWN, SAMPLES, sample_files
 
@@ -145,8 +145,31 @@ def test_unsupported_constructs_are_reported_never_misread() -> None:
     prog = read_program(SAMPLES / "gcode" / "mmount.ngc")
     with pytest.raises(UnsupportedError) as info:
         prog.require_complete()
-    assert info.value.line == 30
-    assert "O-word" in str(info.value)
+    assert info.value.line == 67
+    assert "G81 canned cycle is not modelled" in str(info.value)
+    assert prog.n_commands == 0 and len(prog.moves) == 2  # what ran before line 67 is kept
+
+
+def test_subroutines_and_loops_run_and_repeated_lines_are_never_corrected() -> None:
+    text = (
+        "G21 G90\nG0 X0 Y0\nF100\n"
+        "o10 sub\n  G1 X[#1] Y[#2]\n  G1 X[#1+1]\no10 endsub\n"
+        "#<n> = 0\n"
+        "o20 while [#<n> LT 3]\n  o10 call [#<n>] [2]\n  #<n> = [#<n> + 1]\no20 endwhile\n"
+        "o30 if [#<n> EQ 3]\n  G1 X9 Y9\no30 else\n  G1 X-9 Y-9\no30 endif\n"
+        "o40 repeat [2]\n  G91 G1 X1\n  G90\no40 endrepeat\n"
+        "M2\n"
+    )
+    prog = _read(text)
+    prog.require_complete()
+    mv = prog.moves
+    assert len(mv) == 1 + 6 + 1 + 2
+    assert mv.end_mm[1:7, 0].tolist() == [0, 1, 1, 2, 2, 3]
+    assert mv.end_mm[7, :2].tolist() == [9, 9]
+    assert mv.end_mm[9, 0] == 11
+    assert prog.n_commands == 1  # only "G1 X9 Y9" ran exactly once
+    assert prog.command_line.tolist() == [14]
+    assert np.all(mv.flags[1:7] & FLAG_REPEATED)
 
 
 def test_refused_blocks_match_linuxcnc_messages() -> None:

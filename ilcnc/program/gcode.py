@@ -26,6 +26,7 @@ import numpy as np
 
 from ilcnc.errors import ProgramError
 from ilcnc.program.expr import ExprError, Parameters, read_param_ref, read_value
+from ilcnc.program.gcode_flow import has_control_flow, run_control_flow
 from ilcnc.program.model import (
     FLAG_CUTTER_COMP,
     FLAG_HOME,
@@ -979,6 +980,7 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
         raise ProgramError(p, None, "binary file, not a G-code program")
     text = decode_source(data)
     params = Parameters()
+    params.named.update({"_value": 0.0, "_value_returned": 0.0})  # predefined by LinuxCNC
     lexer = _Lexer(p, params)
     interp = _Interpreter(p, default_units, params)
     unsupported: tuple[int, str] | None = None
@@ -986,6 +988,11 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
     running = True
     lines = text.split("\n")
     n = len(lines)
+    lens = np.fromiter(map(len, lines), dtype=np.int64, count=n) + 1
+    line_start = np.concatenate(([0], np.cumsum(lens)[:-1]))
+    if has_control_flow(text):
+        unsupported = run_control_flow(lexer, interp, lines, line_start)
+        return _finish(p, text, interp, unsupported, default_units, dialect)
     # One C-level pass classifies every line: plain CAM blocks (numbers captured) or other ("slow").
     rows = _ALL_LINES.findall(text)
     if len(rows) != n:  # cannot happen for text split on "\n"; guard the invariant all the same
@@ -995,8 +1002,6 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
     nums = _column_floats(rows, n)
     gcol = np.fromiter((_FAST_MOTION.get(r[0], -1) for r in rows), dtype=np.int64, count=n)
     del rows, slow_col
-    lens = np.fromiter(map(len, lines), dtype=np.int64, count=n) + 1
-    line_start = np.concatenate(([0], np.cumsum(lens)[:-1]))
     slow.append(n)
     i = 0
     for nxt in slow:
@@ -1036,11 +1041,15 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
         if interp.ended:
             running = False
             lexer.lenient = True
+    return _finish(p, text, interp, unsupported, default_units, dialect)
+
+
+def _finish(p: Path, text: str, interp: _Interpreter, unsupported: tuple[int, str] | None, default_units: str,
+            dialect: str | None) -> Program:
     units = interp.st.units_seen or default_units
     dial = dialect or detect_dialect(p, text)
-    prog = Program(path=p, text=text, dialect=dial, units=units, moves=interp.builder.build(), name=p.stem,
+    return Program(path=p, text=text, dialect=dial, units=units, moves=interp.builder.build(), name=p.stem,
                    warnings=interp.warnings, unsupported=unsupported, span_resolver=resolve_fast_spans)
-    return prog
 
 
 def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: str = "", dialect: str = "linuxcnc") -> str:

@@ -1,0 +1,358 @@
+"""O-word control flow of LinuxCNC G-code: subroutines, calls, if/while/do/repeat.
+
+A program with O-word control flow is executed line by line with a program
+counter (no vectorised fast path: such programs are written by hand and
+small). Every line is lexed when it is executed, so parameters and
+expressions take the values they have at that moment, as in LinuxCNC.
+
+Moves whose line runs more than once (a loop body, a subroutine called
+twice) are flagged ``FLAG_REPEATED`` and are never corrected: one source
+line cannot hold two different corrections.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ilcnc.errors import ProgramError
+from ilcnc.program.expr import ExprError, ExprValueError, read_value
+from ilcnc.program.model import FLAG_REPEATED
+
+if TYPE_CHECKING:
+    from ilcnc.program.gcode import _Interpreter, _Lexer
+
+__all__ = ["MAX_EXECUTED_LINES", "has_control_flow", "run_control_flow"]
+
+#: Executed lines after which a program is taken not to terminate.
+MAX_EXECUTED_LINES = 5_000_000
+
+_OLINE = re.compile(
+    r"\s*(?:/\s*)?(?:[Nn]\s*\d+\s*)?[Oo]\s*(<[^>]*>|\d+)\s*"
+    r"(sub|endsub|call|return|if|elseif|else|endif|while|endwhile|do|repeat|endrepeat|break|continue)\b(.*)",
+    re.IGNORECASE,
+)
+_HAS_FLOW = re.compile(r"^\s*(?:[Nn]\s*\d+\s*)?[Oo]\s*(?:<[^>]*>|\d+)\s*(?:sub|call|if|while|do|repeat)\b",
+                       re.IGNORECASE | re.MULTILINE)
+
+
+def has_control_flow(text: str) -> bool:
+    """True when the program uses O-word subroutines or control structures."""
+    return _HAS_FLOW.search(text) is not None
+
+
+@dataclass(slots=True)
+class _OLine:
+    label: str
+    keyword: str
+    rest: str
+
+
+@dataclass(slots=True)
+class _Frame:
+    return_to: int
+    name: str
+    numbered: dict[int, float]
+    named: dict[str, float]
+
+
+@dataclass(slots=True)
+class _Loop:
+    label: str
+    kind: str  # while, do, repeat
+    start: int  # line index of the opening o-word
+    count: int = 0
+
+
+@dataclass(slots=True)
+class _Structure:
+    olines: dict[int, _OLine] = field(default_factory=dict)
+    subs: dict[str, tuple[int, int]] = field(default_factory=dict)  # label -> (sub line, endsub line)
+    partner: dict[int, int] = field(default_factory=dict)  # opening -> closing line and back
+    branches: dict[int, list[int]] = field(default_factory=dict)  # if line -> [elseif/else lines..., endif]
+
+
+def _strip_comment(s: str) -> str:
+    out = re.sub(r"\([^)]*\)", "", s)
+    cut = out.find(";")
+    return out if cut < 0 else out[:cut]
+
+
+def _scan(path: object, lines: list[str]) -> _Structure:
+    """Find every O-word line and match the blocks (sub/endsub, if/endif, ...)."""
+    st = _Structure()
+    stack: list[tuple[str, str, int]] = []
+    for i, raw in enumerate(lines):
+        if "o" not in raw and "O" not in raw:
+            continue
+        m = _OLINE.match(raw)
+        if m is None:
+            continue
+        label = m.group(1).replace(" ", "").lower()
+        kw = m.group(2).lower()
+        st.olines[i] = _OLine(label, kw, _strip_comment(m.group(3)))
+        line = i + 1
+        if kw in ("sub", "if", "while", "repeat", "do"):
+            if kw == "while" and stack and stack[-1][0] == label and stack[-1][1] == "do":
+                _, _, j = stack.pop()
+                st.partner[j] = i
+                st.partner[i] = j
+                continue
+            stack.append((label, kw, i))
+            if kw == "if":
+                st.branches[i] = []
+        elif kw in ("endsub", "endif", "endwhile", "endrepeat"):
+            want = {"endsub": "sub", "endif": "if", "endwhile": "while", "endrepeat": "repeat"}[kw]
+            if not stack or stack[-1][0] != label or stack[-1][1] != want:
+                raise ProgramError(path, line, f"o{label} {kw} without a matching o{label} {want}")
+            _, _, j = stack.pop()
+            st.partner[j] = i
+            st.partner[i] = j
+            if kw == "endsub":
+                st.subs[label] = (j, i)
+            if kw == "endif":
+                st.branches[j].append(i)
+        elif kw in ("elseif", "else"):
+            if not stack or stack[-1][0] != label or stack[-1][1] != "if":
+                raise ProgramError(path, line, f"o{label} {kw} without a matching o{label} if")
+            st.branches[stack[-1][2]].append(i)
+    if stack:
+        label, kw, j = stack[-1]
+        raise ProgramError(path, j + 1, f"o{label} {kw} is never closed")
+    return st
+
+
+def run_control_flow(
+    lexer: _Lexer,
+    interp: _Interpreter,
+    lines: list[str],
+    line_start: np.ndarray,
+) -> tuple[int, str] | None:
+    """Execute a program with O-word control flow; returns ``unsupported`` (or None).
+
+    Lines that are never executed (bodies of skipped branches, subroutines
+    never called, text after the program end) are still lexed for syntax.
+    """
+    from ilcnc.program.gcode import _Unsupported
+
+    path = lexer.path
+    struct = _scan(path, lines)
+    params = lexer.params
+    n = len(lines)
+    executed = np.zeros(n, dtype=np.int64)
+    frames: list[_Frame] = []
+    loops: list[_Loop] = []
+    unsupported: tuple[int, str] | None = None
+    pc = 0
+    steps = 0
+    percent = 0
+
+    def value(text: str, line: int) -> float:
+        try:
+            v, end = read_value(text, 0, params)
+        except ExprValueError as exc:
+            raise _Unsupported(line, str(exc)) from None
+        except ExprError as exc:
+            raise ProgramError(path, line, str(exc)) from None
+        if text[end:].strip():
+            raise ProgramError(path, line, f"unexpected text after the value: {text[end:].strip()!r}")
+        return v
+
+    def args(text: str, line: int) -> list[float]:
+        out: list[float] = []
+        pos = 0
+        t = text.strip()
+        while pos < len(t):
+            if t[pos].isspace():
+                pos += 1
+                continue
+            try:
+                v, pos = read_value(t, pos, params)
+            except ExprValueError as exc:
+                raise _Unsupported(line, str(exc)) from None
+            except ExprError as exc:
+                raise ProgramError(path, line, str(exc)) from None
+            out.append(v)
+        return out
+
+    try:
+        while pc < n:
+            steps += 1
+            if steps > MAX_EXECUTED_LINES:
+                raise _Unsupported(pc + 1, f"program executes more than {MAX_EXECUTED_LINES} lines (endless loop?)")
+            i = pc
+            line = i + 1
+            pc += 1
+            o = struct.olines.get(i)
+            if o is None:
+                raw = lines[i]
+                s = raw[:-1] if raw.endswith("\r") else raw
+                blk = lexer.lex(s, int(line_start[i]), line)
+                if blk.percent:
+                    percent += 1
+                    if percent >= 2:
+                        break
+                    continue
+                executed[i] += 1
+                interp.execute(blk)
+                if interp.ended:
+                    break
+                continue
+            kw = o.keyword
+            executed[i] += 1
+            if kw == "sub":
+                pc = struct.partner[i] + 1  # a definition: skip the body
+            elif kw == "call":
+                target = struct.subs.get(o.label)
+                if target is None:
+                    raise _Unsupported(line, f"o{o.label} call: subroutine not defined in this file (files are not searched)")
+                vals = args(o.rest, line)
+                if len(vals) > 30:
+                    raise ProgramError(path, line, "more than 30 call arguments")
+                if len(frames) > 200:
+                    raise _Unsupported(line, "subroutine calls nested deeper than 200")
+                frames.append(_Frame(pc, o.label, dict(params.numbered), dict(params.named)))
+                for k in range(1, 31):
+                    params.numbered[k] = vals[k - 1] if k <= len(vals) else 0.0
+                params.named = {k: v for k, v in params.named.items() if k.startswith("_")}
+                loops.append(_Loop("", "frame", -1))
+                pc = target[0] + 1
+            elif kw in ("endsub", "return"):
+                if not frames:
+                    if kw == "endsub":
+                        raise ProgramError(path, line, f"o{o.label} endsub reached outside a call")
+                    raise ProgramError(path, line, f"o{o.label} return outside a subroutine")
+                ret = o.rest.strip()
+                rv = value(ret, line) if ret else None
+                frame = frames.pop()
+                while loops and loops[-1].kind != "frame":
+                    loops.pop()
+                if loops:
+                    loops.pop()
+                globals_now = {k: v for k, v in params.named.items() if k.startswith("_")}
+                numbered = {k: v for k, v in params.numbered.items() if k > 30}  # globals stay as the sub left them
+                numbered.update({k: v for k, v in frame.numbered.items() if k <= 30})
+                params.numbered = numbered
+                params.named = {k: v for k, v in frame.named.items() if not k.startswith("_")}
+                params.named.update(globals_now)
+                params.named["_value"] = rv if rv is not None else 0.0
+                params.named["_value_returned"] = 1.0 if rv is not None else 0.0
+                pc = frame.return_to
+            elif kw == "if":
+                branches = struct.branches[i]
+                if value(o.rest.strip(), line) != 0.0:
+                    continue
+                pc = _next_branch(struct, branches, lines, params, value)
+            elif kw in ("elseif", "else"):
+                # reached after a taken branch: leave the if block
+                if_line = _owner_if(struct, i)
+                pc = struct.branches[if_line][-1] + 1
+            elif kw == "endif":
+                pass
+            elif kw == "while":
+                end = struct.partner[i]
+                if end < i:  # tail of a do-while
+                    if value(o.rest.strip(), line) != 0.0:
+                        pc = end + 1
+                    else:
+                        _pop_loop(loops, o.label)
+                    continue
+                if value(o.rest.strip(), line) != 0.0:
+                    if not loops or loops[-1].start != i:
+                        loops.append(_Loop(o.label, "while", i))
+                else:
+                    _pop_loop(loops, o.label)
+                    pc = end + 1
+            elif kw == "endwhile":
+                pc = struct.partner[i]
+            elif kw == "do":
+                if not loops or loops[-1].start != i:
+                    loops.append(_Loop(o.label, "do", i))
+            elif kw == "repeat":
+                if loops and loops[-1].start == i:
+                    loop = loops[-1]
+                else:
+                    cnt = value(o.rest.strip(), line)
+                    loop = _Loop(o.label, "repeat", i, round(cnt))
+                    loops.append(loop)
+                if loop.count <= 0:
+                    _pop_loop(loops, o.label)
+                    pc = struct.partner[i] + 1
+                else:
+                    loop.count -= 1
+            elif kw == "endrepeat":
+                pc = struct.partner[i]
+            elif kw in ("break", "continue"):
+                loop = next((lp for lp in reversed(loops) if lp.label == o.label and lp.kind != "frame"), None)
+                if loop is None:
+                    raise ProgramError(path, line, f"o{o.label} {kw} outside an o{o.label} loop")
+                close = struct.partner[loop.start]
+                if kw == "break":
+                    _pop_loop(loops, o.label)
+                    pc = close + 1
+                elif loop.kind == "do":
+                    pc = close  # evaluate the do-while condition
+                else:
+                    pc = loop.start if loop.kind == "while" else close
+            else:  # pragma: no cover - the regex admits only the keywords above
+                raise ProgramError(path, line, f"unknown O-word keyword {kw}")
+    except _Unsupported as exc:
+        unsupported = (exc.line, exc.problem)
+    lexer.lenient = True
+    # lex every line never executed, for syntax errors
+    for i in np.flatnonzero(executed == 0):
+        if int(i) in struct.olines:
+            continue
+        raw = lines[i]
+        s = raw[:-1] if raw.endswith("\r") else raw
+        lexer.lex(s, int(line_start[i]), int(i) + 1)
+    _mark_repeated(interp, executed)
+    return unsupported
+
+
+def _pop_loop(loops: list[_Loop], label: str) -> None:
+    while loops and loops[-1].kind != "frame":
+        lp = loops.pop()
+        if lp.label == label:
+            return
+
+
+def _owner_if(struct: _Structure, i: int) -> int:
+    for if_line, br in struct.branches.items():
+        if i in br:
+            return if_line
+    raise KeyError(i)  # pragma: no cover
+
+
+def _next_branch(struct: _Structure, branches: list[int], lines: list[str], params: object, value: object) -> int:
+    """Line to continue at after a false ``if``: the first true ``elseif``, the ``else``, or after ``endif``."""
+    for b in branches:
+        o = struct.olines[b]
+        if o.keyword == "elseif":
+            if value(o.rest.strip(), b + 1) != 0.0:  # type: ignore[operator]
+                return b + 1
+        elif o.keyword == "else":
+            return b + 1
+        else:  # endif
+            return b + 1
+    return branches[-1] + 1  # pragma: no cover
+
+
+def _mark_repeated(interp: _Interpreter, executed: np.ndarray) -> None:
+    """Flag moves of lines run more than once and renumber the commands."""
+    b = interp.builder
+    b._flush()
+    if not b._chunks:
+        return
+    table = b.build()
+    rep = executed[table.line - 1] > 1
+    if rep.any():
+        table.flags[rep] |= FLAG_REPEATED
+        keep = (table.command >= 0) & ~rep
+        table.command[:] = -1
+        table.command[keep] = np.arange(int(keep.sum()), dtype=np.int32)
+    b._chunks = [table]
+    b.n_commands = int(np.count_nonzero(table.command >= 0))
