@@ -232,8 +232,12 @@ class _Lexer:
                 continue
             if ch in "@^":
                 blk.polar = True
-                value, pos = self._value(s, pos + 1, line)
-                blk.words.append(Word(ch, value, base + pos, base + pos, 0, 0))
+                if ch in seen:
+                    raise self.error(line, f"word {ch} appears twice in one block")
+                seen.add(ch)
+                vstart = pos + 1
+                value, pos = self._value(s, vstart, line)
+                blk.words.append(Word(ch, value, base + vstart, base + pos, 0, 0))
                 blk.end_offset = base + pos
                 continue
             if ch in "Oo":
@@ -365,8 +369,6 @@ class _Interpreter:
         if blk.system is not None:
             self.warnings.append(f"line {blk.line}: grbl system command {blk.system!r} ignored")
             return
-        if blk.polar:
-            raise _Unsupported(blk.line, "polar coordinates (@ ^) are not modelled")
         st = self.st
         words = blk.words
         if not words:
@@ -443,6 +445,8 @@ class _Interpreter:
                 st.arc_absolute = True
             elif c == 911:
                 st.arc_absolute = False
+        if blk.polar:
+            self._polar_to_xy(letters, line)
         axis_words = [letters.get(a) for a in "XYZ"]
         has_axis = any(w is not None for w in axis_words) or any(a in letters for a in "ABC")
         group0 = [c for c in gcodes if c in _GROUP0]
@@ -490,6 +494,39 @@ class _Interpreter:
             if mc in (2, 30, 60) and mc != 60:
                 self.ended = True
         self._assign(blk)
+
+    def _polar_to_xy(self, letters: dict[str, Word], line: int) -> None:
+        """Replace ``@`` (radius) and ``^`` (angle, degrees) by X and Y words (G17 only).
+
+        As in LinuxCNC: in G90 radius and angle are measured from the origin
+        of the work system, a missing one keeps the current value; in G91
+        both are increments of the current polar radius and angle.
+        """
+        st = self.st
+        if "X" in letters or "Y" in letters:
+            raise self.error(line, "polar coordinates @ ^ cannot be mixed with X or Y words")
+        if st.plane != PLANE_XY:
+            raise self.error(line, "polar coordinates @ ^ need plane G17")
+        off = st.offset()
+        px = (st.pos[0] - off[0]) / st.unit
+        py = (st.pos[1] - off[1]) / st.unit
+        r0 = math.hypot(px, py)
+        a0 = math.degrees(math.atan2(py, px))
+        rw, aw = letters.pop("@", None), letters.pop("^", None)
+        if st.absolute:
+            r = rw.value if rw is not None else r0
+            a = aw.value if aw is not None else a0
+            x, y = r * math.cos(math.radians(a)), r * math.sin(math.radians(a))
+        else:
+            r = r0 + (rw.value if rw is not None else 0.0)
+            a = a0 + (aw.value if aw is not None else 0.0)
+            x = r * math.cos(math.radians(a)) - px
+            y = r * math.sin(math.radians(a)) - py
+        anchor = rw if rw is not None else aw
+        assert anchor is not None
+        # computed words: no literal number in the source, so never rewritten or corrected
+        letters["X"] = Word("X", x, anchor.start, anchor.end, 0, 0)
+        letters["Y"] = Word("Y", y, anchor.start, anchor.end, 0, 0)
 
     def _assign(self, blk: Block) -> None:
         for key, value in blk.assignments:
