@@ -141,9 +141,10 @@ def test_export_refuses_to_overwrite_input(tmp_path: Path) -> None:
 def test_corrections_on_unsupported_program_are_refused(tmp_path: Path) -> None:
     csv = tmp_path / "c.csv"
     csv.write_text("k,dx,dy,dz\n0,0.01,0,0\n")
-    r = _cli("export", str(SAMPLES / "gcode" / "mmount.ngc"), "--out", str(tmp_path / "o.ngc"), "--corrections", str(csv))
+    r = _cli("export", str(SAMPLES / "gcode" / "systems.ngc"), "--out", str(tmp_path / "o.ngc"), "--corrections", str(csv))
     assert r.returncode == 1
-    assert "mmount.ngc:67:" in r.stderr and "G81" in r.stderr
+    assert "systems.ngc:15:" in r.stderr and "G5.1 quadratic spline is not modelled" in r.stderr
+    assert not (tmp_path / "o.ngc").exists()
 
 
 def test_rewritten_numbers_keep_the_source_spelling(tmp_path: Path) -> None:

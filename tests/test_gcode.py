@@ -145,9 +145,9 @@ def test_unsupported_constructs_are_reported_never_misread() -> None:
     prog = read_program(SAMPLES / "gcode" / "mmount.ngc")
     with pytest.raises(UnsupportedError) as info:
         prog.require_complete()
-    assert info.value.line == 67
-    assert "G81 canned cycle is not modelled" in str(info.value)
-    assert prog.n_commands == 0 and len(prog.moves) == 2  # what ran before line 67 is kept
+    assert info.value.line == 314
+    assert "G33.1 rigid tapping is not modelled" in str(info.value)
+    assert len(prog.moves) == 562  # subroutines, loops and drilling cycles before line 314 were run
 
 
 def test_subroutines_and_loops_run_and_repeated_lines_are_never_corrected() -> None:

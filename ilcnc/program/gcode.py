@@ -29,6 +29,7 @@ from ilcnc.program.expr import ExprError, Parameters, read_param_ref, read_value
 from ilcnc.program.gcode_flow import has_control_flow, run_control_flow
 from ilcnc.program.model import (
     FLAG_CUTTER_COMP,
+    FLAG_DERIVED,
     FLAG_HOME,
     FLAG_MACHINE,
     FLAG_PARAMETRIC,
@@ -93,14 +94,14 @@ _UNSUPPORTED_G = {
     50: "G5 cubic spline", 51: "G5.1 quadratic spline", 52: "G5.2 NURBS", 53: "G5.3 NURBS",
     70: "G7 lathe diameter mode", 80: "G8 lathe radius mode", 150: "G15 polar mode", 160: "G16 polar mode",
     330: "G33 spindle-synchronised motion", 331: "G33.1 rigid tapping", 382: "G38.2 probing",
-    383: "G38.3 probing", 384: "G38.4 probing", 385: "G38.5 probing", 730: "G73 canned cycle",
-    760: "G76 threading cycle", 810: "G81 canned cycle", 820: "G82 canned cycle", 830: "G83 canned cycle",
-    840: "G84 canned cycle", 850: "G85 canned cycle", 860: "G86 canned cycle", 870: "G87 canned cycle",
-    880: "G88 canned cycle", 890: "G89 canned cycle", 411: "G41.1 dynamic cutter compensation",
+    383: "G38.3 probing", 384: "G38.4 probing", 385: "G38.5 probing",
+    760: "G76 threading cycle",
+    840: "G84 tapping cycle", 870: "G87 back boring cycle", 880: "G88 boring cycle", 411: "G41.1 dynamic cutter compensation",
     421: "G42.1 dynamic cutter compensation", 432: "G43.2 additional tool length offset",
     923: "G92.3 restore of saved offsets", 960: "G96 constant surface speed", 700: "G70 lathe cycle",
     710: "G71 lathe cycle", 720: "G72 lathe cycle",
 }
+_CYCLES = frozenset({730, 810, 820, 830, 850, 860, 890})
 _CS_CODES = {540: 1, 550: 2, 560: 3, 570: 4, 580: 5, 590: 6, 591: 7, 592: 8, 593: 9}
 
 
@@ -337,6 +338,12 @@ class _State:
     g5x: list[list[float]] = field(default_factory=lambda: [[0.0, 0.0, 0.0] for _ in range(10)])
     g92: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     units_seen: str | None = None
+    retract_old_z: bool = False  # G98 / G99 (LinuxCNC starts in G99: retract to R)
+    cycle_r: float | None = None
+    cycle_il: float | None = None
+    cycle_z: float | None = None
+    cycle_p: float | None = None
+    cycle_q: float | None = None
 
     def offset(self) -> tuple[float, float, float]:
         o = self.g5x[self.cs]
@@ -358,12 +365,14 @@ class _Interpreter:
         self.warnings: list[str] = []
         self.ended = False
         self.axis_warned = False
+        self.polar_words: tuple[float | None, float | None] = (None, None)
 
     def error(self, line: int, problem: str) -> _Unsupported:
         """A block the interpreter refuses (as LinuxCNC would): stops the interpretation."""
         return _Unsupported(line, problem)
 
     def execute(self, blk: Block) -> None:
+        self.polar_words = (None, None)
         if blk.o_word is not None and blk.o_word != "program-number":
             raise _Unsupported(blk.line, f"O-word '{blk.o_word}' (subroutines and control flow) is not modelled")
         if blk.system is not None:
@@ -441,6 +450,10 @@ class _Interpreter:
                 st.absolute = True
             elif c == 910:
                 st.absolute = False
+            elif c == 980:
+                st.retract_old_z = True
+            elif c == 990:
+                st.retract_old_z = False
             elif c == 901:
                 st.arc_absolute = True
             elif c == 911:
@@ -473,9 +486,19 @@ class _Interpreter:
                 for i, w in enumerate(axis_words):
                     if w is not None:
                         st.g92[i] = w.value * st.unit
+        prev_motion = st.motion
         if motion_codes:
             st.motion = motion_codes[0]
-        if has_axis and not axis_group0:
+        if st.motion in _CYCLES and prev_motion != st.motion:
+            st.cycle_il = None  # a new cycle starts: its initial level is taken at its first hole
+        if "R" in letters and st.motion in _CYCLES:
+            st.cycle_r = letters["R"].value
+        if st.motion in _CYCLES and ("P" in letters or "Q" in letters):
+            st.cycle_p = letters["P"].value if "P" in letters else st.cycle_p
+            st.cycle_q = letters["Q"].value if "Q" in letters else st.cycle_q
+        if st.motion in _CYCLES and (has_axis or (motion_codes and motion_codes[0] in _CYCLES)) and not axis_group0:
+            self._cycle(st.motion, letters, axis_words, line)
+        elif has_axis and not axis_group0:
             if st.motion == 800:
                 raise self.error(line, "axis words without an active motion mode (G0/G1/G2/G3)")
             if any(a in letters for a in "ABC"):
@@ -495,6 +518,102 @@ class _Interpreter:
                 self.ended = True
         self._assign(blk)
 
+    def _cycle(self, code: int, letters: dict[str, Word], axis_words: list[Word | None], line: int) -> None:
+        """Drilling cycles G73 G81 G82 G83 G85 G86 G89 in G17, as LinuxCNC executes them.
+
+        Their moves are rapids and feeds along Z at the hole positions; they
+        are never corrected (drilling is not contouring).
+        """
+        st = self.st
+        if st.plane != PLANE_XY:
+            raise _Unsupported(line, f"canned cycle G{code / 10:g} outside plane G17 is not modelled")
+        if st.cycle_r is None:
+            raise self.error(line, f"canned cycle G{code / 10:g} without an R word")
+        if st.feed <= 0:
+            raise self.error(line, f"canned cycle G{code / 10:g} with zero feed rate")
+        if code in (730, 830) and (st.cycle_q is None or st.cycle_q <= 0):
+            raise self.error(line, f"G{code / 10:g} needs a positive Q (peck depth)")
+        zw = axis_words[2]
+        if zw is not None:
+            st.cycle_z = zw.value
+        if st.cycle_z is None:
+            raise self.error(line, f"canned cycle G{code / 10:g} without a Z word")
+        repeats = 1
+        if "L" in letters:
+            lv = letters["L"].value
+            if lv < 0 or abs(lv - round(lv)) > 1e-6:
+                raise self.error(line, "L (repeat count) must be a non-negative integer")
+            repeats = round(lv)
+        u = st.unit
+        off = st.offset()
+        if st.cycle_il is None:
+            st.cycle_il = st.pos[2]  # LinuxCNC's "initial level": base of G91 R and the G98 height
+        il = st.cycle_il
+        if st.absolute:
+            r_mm = st.cycle_r * u + off[2]
+            bottom = st.cycle_z * u + off[2]
+        else:
+            r_mm = il + st.cycle_r * u
+            bottom = r_mm + st.cycle_z * u
+        clear = max(il, r_mm) if st.retract_old_z else r_mm
+        delta = 0.010 * MM_PER_INCH  # LinuxCNC's G73/G83 clearance, 0.010 inch
+        feed = st.feed * u
+        flags = FLAG_DERIVED
+        none3: list[Word | None] = [None, None, None]
+
+        def rapid(x: float, y: float, z: float) -> None:
+            self._add(MOVE_RAPID, line, (x, y, z), flags=flags, words=none3, offset=off)
+
+        def down(z: float) -> None:
+            p = st.pos
+            self._add(MOVE_LINE, line, (p[0], p[1], z), flags=flags, words=none3, offset=off, feed=feed)
+
+        polar = self.polar_words if self.polar_words != (None, None) else None
+        for rep in range(repeats):
+            p = st.pos
+            if polar is not None and not st.absolute and rep > 0:
+                # G91 polar repeats step the polar radius and angle again from the new hole
+                px, py = (p[0] - off[0]) / u, (p[1] - off[1]) / u
+                r = math.hypot(px, py) + (polar[0] or 0.0)
+                a = math.degrees(math.atan2(py, px)) + (polar[1] or 0.0)
+                x = r * math.cos(math.radians(a)) * u + off[0]
+                y = r * math.sin(math.radians(a)) * u + off[1]
+            elif st.absolute:
+                x = axis_words[0].value * u + off[0] if axis_words[0] is not None else p[0]
+                y = axis_words[1].value * u + off[1] if axis_words[1] is not None else p[1]
+            else:
+                x = p[0] + (axis_words[0].value * u if axis_words[0] is not None else 0.0)
+                y = p[1] + (axis_words[1].value * u if axis_words[1] is not None else 0.0)
+            if rep == 0 and p[2] <= r_mm:
+                rapid(p[0], p[1], clear)
+            rapid(x, y, st.pos[2])
+            if st.pos[2] != r_mm:
+                rapid(x, y, r_mm)
+            if code in (730, 830):
+                q = st.cycle_q * u  # type: ignore[operator]
+                depth = r_mm
+                while True:
+                    nxt = max(depth - q, bottom)
+                    down(nxt)
+                    if nxt <= bottom:
+                        break
+                    if code == 830:
+                        rapid(x, y, r_mm)
+                    rapid(x, y, nxt + delta)
+                    depth = nxt
+                rapid(x, y, clear)
+            elif code == 850:
+                down(bottom)
+                down(r_mm)
+                if clear != r_mm:
+                    rapid(x, y, clear)
+            elif code == 890:
+                down(bottom)
+                down(clear)
+            else:  # 810, 820, 860
+                down(bottom)
+                rapid(x, y, clear)
+
     def _polar_to_xy(self, letters: dict[str, Word], line: int) -> None:
         """Replace ``@`` (radius) and ``^`` (angle, degrees) by X and Y words (G17 only).
 
@@ -513,6 +632,7 @@ class _Interpreter:
         r0 = math.hypot(px, py)
         a0 = math.degrees(math.atan2(py, px))
         rw, aw = letters.pop("@", None), letters.pop("^", None)
+        self.polar_words = (rw.value if rw is not None else None, aw.value if aw is not None else None)
         if st.absolute:
             r = rw.value if rw is not None else r0
             a = aw.value if aw is not None else a0
