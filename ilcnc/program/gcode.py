@@ -101,6 +101,16 @@ _UNSUPPORTED_G = {
     923: "G92.3 restore of saved offsets", 960: "G96 constant surface speed", 700: "G70 lathe cycle",
     710: "G71 lathe cycle", 720: "G72 lathe cycle",
 }
+# Arc tolerances of LinuxCNC's interpreter (boundaries measured with rs274): centre-format arcs may
+# miss the end radius by 0.02*sqrt(2) mm (mm programs) or 0.001*sqrt(2) inch, R-format arcs may be
+# short of the half chord by 0.00127 mm (0.00005 inch) before they are refused.
+_RADIUS_TOLERANCE_MM = 0.00127
+
+
+def _center_arc_tolerance_mm(unit_mm: float) -> float:
+    return 0.02 * math.sqrt(2.0) if unit_mm == 1.0 else 0.001 * math.sqrt(2.0) * MM_PER_INCH
+
+
 _CYCLES = frozenset({730, 810, 820, 830, 850, 860, 890})
 _CS_CODES = {540: 1, 550: 2, 560: 3, 570: 4, 580: 5, 590: 6, 591: 7, 592: 8, 593: 9}
 
@@ -927,7 +937,8 @@ class _Interpreter:
             r0 = np.hypot(start[:, a1] - center[:, a1], start[:, a2] - center[:, a2])
             r1 = np.hypot(end[:, a1] - center[:, a1], end[:, a2] - center[:, a2])
             with np.errstate(invalid="ignore"):
-                bad |= use_c & ((r0 < 1e-9) | ((np.abs(r1 - r0) > 0.05) & (np.abs(r1 - r0) > 1e-3 * r0)))
+                tol = _center_arc_tolerance_mm(unit)
+                bad |= use_c & ((r0 < 1e-9) | ((np.abs(r1 - r0) > tol) & (np.abs(r1 - r0) > 1e-3 * r0)))
         if use_r.any():
             r = rvals * unit
             dx = end[:, a1] - start[:, a1]
@@ -937,7 +948,7 @@ class _Interpreter:
             ar = np.abs(r)
             short = use_r & (ar < half)
             with np.errstate(invalid="ignore"):
-                bad |= use_r & ((d < 1e-9) | (short & (half - ar > 0.0127) & (half - ar > 1e-3 * half)))
+                bad |= use_r & ((d < 1e-9) | (short & (half - ar > _RADIUS_TOLERANCE_MM)))
             ar = np.where(short, half, ar)
             with np.errstate(invalid="ignore", divide="ignore"):
                 h = np.sqrt(np.maximum(ar * ar - half * half, 0.0))
@@ -977,7 +988,7 @@ class _Interpreter:
             half = d / 2.0
             ar = abs(r)
             if ar < half:
-                if half - ar > 0.0127 and half - ar > 1e-3 * half:
+                if half - ar > _RADIUS_TOLERANCE_MM:
                     raise self.error(line, f"arc radius {ar:g} mm too small to reach the end point")
                 ar = half
             h = math.sqrt(max(ar * ar - half * half, 0.0))
@@ -1001,8 +1012,8 @@ class _Interpreter:
             r1 = math.hypot(target[a1] - center[a1], target[a2] - center[a2])
             if r0 < 1e-9:
                 raise self.error(line, "arc with zero radius (centre at the start point)")
-            # LinuxCNC accepts small mismatches (its own sample good-arc.small: 0.028 mm, 0.11 %)
-            if abs(r1 - r0) > 0.05 and abs(r1 - r0) > 1e-3 * r0:
+            # LinuxCNC's limits, measured against rs274 (its sample good-arc.small sits at 0.028 mm, 0.11 %)
+            if abs(r1 - r0) > _center_arc_tolerance_mm(st.unit) and abs(r1 - r0) > 1e-3 * r0:
                 raise self.error(line, f"arc radius to end ({r1:.4f} mm) differs from radius to start ({r0:.4f} mm)")
         lin = _PLANE_AXES[st.plane][2]
         center[lin] = float("nan")
