@@ -1,0 +1,525 @@
+"""Feed planning: the reference trajectory r(t) a CNC interpolator would command.
+
+Method: FIR-filter interpolation
+--------------------------------
+The path is first traversed by an *ideal interpolator* at piecewise-constant
+speed (each move, or the zones of a move near its corners, at its own speed;
+arcs as arcs, sampled exactly). That position signal is then smoothed by
+cascaded moving-average (FIR) filters on every axis:
+
+* ``seven_phase``: two filters, lengths ``T1`` and ``T2``. A velocity step
+  through them becomes a trapezoidal acceleration with constant-jerk ramps:
+  the classical 7-phase jerk-limited profile (for a rest-to-rest move it is
+  the time-optimal one once the move reaches V and A).
+* ``cubic``: a third filter of the profile's ``jerk_time_constant_s`` makes
+  the jerk continuous (piecewise linear), the "cubic acceleration profiles"
+  of seed 004 (not the 7-phase profile; DESIGN.md lists this defect).
+* ``constant_feed``: no filter: the ideal interpolator itself (no
+  acceleration limits), as the seed 000 and 003 cases need.
+
+Why filters instead of a hand-written look-ahead: a moving average of
+length ``T`` turns any velocity jump ``dv`` into an acceleration ``dv/T``
+and any acceleration jump ``da`` into a jerk ``da/T``; so the acceleration
+and jerk of every axis are bounded by construction, the feed is never forced
+to zero between short CAM segments (the filter averages over many of them)
+and the whole plan is a handful of vectorised numpy passes (cumulative sums),
+millions of servo samples per second. Corners are rounded by the filters; the
+corner speed is chosen so that the rounding stays within the corner
+tolerance (like LinuxCNC's ``G64 P``): for two filters the distance of the
+rounded corner from the vertex is ``v·|Δu|·(T1/8 + T2²/(24·T1))``. Arcs and
+densely segmented curves shrink by ``v²(T1²+T2²)/(24R)``; their speed is
+limited the same way, and by the centripetal acceleration ``v²/R``.
+
+After filtering, every axis's velocity, acceleration and jerk are checked on
+the sampled reference (finite differences); where a limit would be exceeded
+(e.g. a reversal, which doubles a velocity jump) the speed of the moves
+around it is lowered and that group is planned again.
+
+Rapids and feed moves form separate *groups* with their own time constants
+(rapids are much faster); the planner comes to a stop between groups.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ilcnc.profile import MachineProfile
+from ilcnc.program.geometry import arc_sweep_rad, move_lengths_mm
+from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, MoveTable
+
+__all__ = ["PlanLimits", "Reference", "check_limits", "plan_moves", "plan_program"]
+
+_PLANE_AXES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
+_EPS = 1e-9
+_HOLD_SAMPLES = 3
+#: Relative float noise of finite-difference jerk on positions of ~1e2 mm at a 1 ms period
+#: (8·eps·|x|/Ts³ plus the cumulative sums of the filters); limits are checked beyond it.
+_FD_NOISE = 1e-5
+
+
+@dataclass(slots=True)
+class Reference:
+    """The planned reference trajectory, sampled at the servo period.
+
+    Attributes
+    ----------
+    period_s : float
+        Servo period, s.
+    pos_mm : ndarray (N, 3)
+        Reference position r(t) of X, Y, Z, mm (consistent frame of the program).
+    move : ndarray (N,) int32
+        Index of the move the reference is on (-1 while standing before the first move).
+    command : ndarray (N,) int32
+        G01 command index k active at each sample, -1 on other moves.
+    line : ndarray (N,) int32
+        Source line of the active move (0 when none).
+    move_speed_mm_s : ndarray (M,)
+        Speed the ideal interpolator used per move (the slowest of its zones), mm/s.
+    """
+
+    period_s: float
+    pos_mm: NDArray[np.float64]
+    move: NDArray[np.int32]
+    command: NDArray[np.int32]
+    line: NDArray[np.int32]
+    move_speed_mm_s: NDArray[np.float64]
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.pos_mm.shape[0])
+
+    @property
+    def t_s(self) -> NDArray[np.float64]:
+        """Sample times, s."""
+        return np.arange(self.n_samples) * self.period_s
+
+    @property
+    def duration_s(self) -> float:
+        """Planned cycle time, s."""
+        return max(self.n_samples - 1, 0) * self.period_s
+
+
+@dataclass(frozen=True, slots=True)
+class PlanLimits:
+    """Per-axis kinematic limits in mm and s (arrays of 3; inf for an axis without limits)."""
+
+    velocity_mm_s: NDArray[np.float64]
+    rapid_mm_s: NDArray[np.float64]
+    acceleration_mm_s2: NDArray[np.float64]
+    jerk_mm_s3: NDArray[np.float64]
+
+    @classmethod
+    def from_profile(cls, profile: MachineProfile) -> PlanLimits:
+        v = np.full(3, np.inf)
+        r = np.full(3, np.inf)
+        a = np.full(3, np.inf)
+        j = np.full(3, np.inf)
+        for i, name in enumerate("xyz"):
+            ax = profile.axes.get(name)
+            if ax is None:
+                continue
+            v[i] = ax.max_velocity_mm_s
+            r[i] = ax.rapid_mm_s
+            a[i] = ax.max_acceleration_mm_s2
+            j[i] = ax.max_jerk_mm_s3
+        return cls(v, r, a, j)
+
+
+def plan_program(program: object, profile: MachineProfile, *, mode: str | None = None) -> Reference:
+    """Plan a :class:`~ilcnc.program.model.Program` with a machine profile."""
+    moves = program.moves  # type: ignore[attr-defined]
+    return plan_moves(
+        moves,
+        PlanLimits.from_profile(profile),
+        period_s=profile.machine.servo_period_s,
+        mode=mode or profile.planner.profile,
+        corner_tolerance_mm=profile.planner.corner_tolerance_mm,
+        jerk_time_constant_s=profile.planner.jerk_time_constant_s,
+    )
+
+
+def plan_moves(
+    moves: MoveTable,
+    limits: PlanLimits,
+    *,
+    period_s: float,
+    mode: str = "seven_phase",
+    corner_tolerance_mm: float = 0.01,
+    jerk_time_constant_s: float = 0.01,
+    max_passes: int = 12,
+) -> Reference:
+    """Plan the reference trajectory of a move table.
+
+    Parameters
+    ----------
+    moves : MoveTable
+        The program's moves.
+    limits : PlanLimits
+        Axis limits (mm, s).
+    period_s : float
+        Servo period, s.
+    mode : {"seven_phase", "cubic", "constant_feed"}
+        Profile kind (see the module docstring).
+    corner_tolerance_mm : float
+        Largest distance the planned path may cut a corner or shrink an arc, mm.
+    jerk_time_constant_s : float
+        Third filter length of the ``cubic`` profile, s.
+    max_passes : int
+        Re-planning passes allowed to remove limit violations per group.
+    """
+    if mode not in ("seven_phase", "cubic", "constant_feed"):
+        raise ValueError(f"unknown planner profile {mode!r}")
+    m = len(moves)
+    length = move_lengths_mm(moves)
+    speed = _nominal_speed(moves, length, limits)
+    empty = Reference(period_s, np.zeros((0, 3)), np.zeros(0, np.int32), np.zeros(0, np.int32),
+                      np.zeros(0, np.int32), speed)
+    if m == 0:
+        return empty
+    active = length > _EPS
+    groups = _groups(moves.kind, active)
+    pieces_pos: list[NDArray[np.float64]] = []
+    pieces_move: list[NDArray[np.int32]] = []
+    start_pos = moves.start_mm[0]
+    pieces_pos.append(start_pos[None, :])
+    pieces_move.append(np.array([-1], dtype=np.int32))
+    final_speed = speed.copy()
+    for g0, g1 in groups:
+        idx = np.arange(g0, g1)
+        idx = idx[active[idx]]
+        if idx.size == 0:
+            continue
+        pos, mv_idx, used = _plan_group(moves, idx, length, speed, limits, period_s, mode, corner_tolerance_mm,
+                                        jerk_time_constant_s, max_passes)
+        final_speed[idx] = used
+        pieces_pos.append(pos)
+        pieces_move.append(mv_idx)
+        # stand still for a few ticks between groups: the machine stops there, and the
+        # finite differences of one group's end and the next one's start must not mix
+        pieces_pos.append(np.repeat(pos[-1:], _HOLD_SAMPLES, axis=0))
+        pieces_move.append(np.repeat(mv_idx[-1:], _HOLD_SAMPLES))
+    if len(pieces_pos) > 1:  # no stand-still after the last group
+        pieces_pos.pop()
+        pieces_move.pop()
+    pos = np.concatenate(pieces_pos)
+    mv = np.concatenate(pieces_move).astype(np.int32)
+    cmd = np.where(mv >= 0, moves.command[np.maximum(mv, 0)], -1).astype(np.int32)
+    line = np.where(mv >= 0, moves.line[np.maximum(mv, 0)], 0).astype(np.int32)
+    return Reference(period_s, pos, mv, cmd, line, final_speed)
+
+
+def _groups(kind: NDArray[np.int8], active: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """Runs of moves planned together: rapids apart from feed moves (the machine stops between)."""
+    rapid = kind == MOVE_RAPID
+    edges = np.flatnonzero(rapid[1:] != rapid[:-1]) + 1
+    bounds = np.concatenate(([0], edges, [kind.shape[0]]))
+    return [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+
+
+def _directions(moves: MoveTable) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Unit tangent at the start and at the end of every move."""
+    d = moves.end_mm - moves.start_mm
+    n = np.linalg.norm(d, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = d / n[:, None]
+    u = np.nan_to_num(u)
+    t_start = u.copy()
+    t_end = u.copy()
+    is_arc = moves.kind >= MOVE_ARC_CW
+    if is_arc.any():
+        sweep = arc_sweep_rad(moves)
+        for plane, (a1, a2, lin) in _PLANE_AXES.items():
+            sel = np.flatnonzero(is_arc & (moves.plane == plane))
+            if sel.size == 0:
+                continue
+            c = moves.center_mm[sel]
+            s = moves.start_mm[sel]
+            e = moves.end_mm[sel]
+            sign = np.where(moves.kind[sel] == MOVE_ARC_CW, -1.0, 1.0)
+            r = np.hypot(s[:, a1] - c[:, a1], s[:, a2] - c[:, a2])
+            arc_len = r * sweep[sel]
+            dz = e[:, lin] - s[:, lin]
+            for tvec, p in ((t_start, s), (t_end, e)):
+                rx, ry = p[:, a1] - c[:, a1], p[:, a2] - c[:, a2]
+                tx, ty = -ry * sign, rx * sign  # CCW tangent is (-ry, rx)
+                norm = np.hypot(arc_len, dz)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    k = np.where(norm > 0, arc_len / norm, 1.0) / np.maximum(r, _EPS)
+                    lz = np.where(norm > 0, dz / norm, 0.0)
+                tvec[sel, a1] = tx * k
+                tvec[sel, a2] = ty * k
+                tvec[sel, lin] = lz
+    return t_start, t_end
+
+
+def _nominal_speed(moves: MoveTable, length: NDArray[np.float64], limits: PlanLimits) -> NDArray[np.float64]:
+    """Programmed speed of every move, capped so no axis exceeds its velocity limit (mm/s)."""
+    d = np.abs(moves.end_mm - moves.start_mm)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.where(length[:, None] > _EPS, d / length[:, None], 0.0)
+    rapid = moves.kind == MOVE_RAPID
+    vmax_axis = np.where(rapid[:, None], limits.rapid_mm_s[None, :], limits.velocity_mm_s[None, :])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cap = np.min(np.where(u > 1e-12, vmax_axis / np.maximum(u, 1e-300), np.inf), axis=1)
+    is_arc = moves.kind >= MOVE_ARC_CW
+    # an arc sweeps through every direction of its plane: cap by the slowest axis of the plane
+    if is_arc.any():
+        for plane, (a1, a2, _lin) in _PLANE_AXES.items():
+            sel = is_arc & (moves.plane == plane)
+            cap[sel] = np.minimum(cap[sel], min(limits.velocity_mm_s[a1], limits.velocity_mm_s[a2]))
+    feed = np.where(rapid, np.inf, moves.feed_mm_min / 60.0)
+    feed = np.where(np.isfinite(feed) & (feed > 0) | rapid, feed, cap)
+    v = np.minimum(feed, cap)
+    v = np.where(np.isfinite(v), v, np.nanmin(np.where(np.isfinite(limits.velocity_mm_s), limits.velocity_mm_s, 1e3)))
+    return np.maximum(v, 1e-6)
+
+
+def _filter_lengths(mode: str, vmax_axis: NDArray[np.float64], limits: PlanLimits, period_s: float,
+                    jerk_time_constant_s: float) -> tuple[int, ...]:
+    """Moving-average lengths (samples) for a group whose axes reach ``vmax_axis`` (mm/s)."""
+    if mode == "constant_feed":
+        return ()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = np.nanmax(np.where(np.isfinite(limits.acceleration_mm_s2), vmax_axis / limits.acceleration_mm_s2, 0.0))
+    n1 = max(1, math.ceil(t1 / period_s - 1e-9))
+    acc_used = vmax_axis / (n1 * period_s)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t2 = np.nanmax(np.where(np.isfinite(limits.jerk_mm_s3), acc_used / limits.jerk_mm_s3, 0.0))
+    n2 = max(1, math.ceil(t2 / period_s - 1e-9))
+    lengths = [n1, n2]
+    if mode == "cubic":
+        lengths.append(max(1, math.ceil(jerk_time_constant_s / period_s - 1e-9)))
+    return tuple(n for n in lengths if n > 1)
+
+
+def _smooth_increments(d: NDArray[np.float64], n: int) -> NDArray[np.float64]:
+    """Moving average of ``n`` samples over per-tick increments (length grows by ``n - 1``).
+
+    Filtering increments instead of positions keeps every cumulative sum at
+    the scale of a position (not of a position times the sample count), so the
+    third differences stay at float noise (~1e-5 of a jerk limit at 1 ms).
+    """
+    if n <= 1:
+        return d
+    c = np.cumsum(np.concatenate([d, np.zeros((n - 1, *d.shape[1:]))]), axis=0)
+    out = c.copy()
+    out[n:] -= c[:-n]
+    return out / n
+
+
+def _sample_ideal(moves: MoveTable, idx: NDArray[np.int64], pieces: _Pieces, period_s: float
+                  ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Positions of the ideal interpolator at every servo tick of a group, and the move index there."""
+    plen, pspd, owner, offs, mlen = pieces
+    dur = plen / pspd
+    t_end = np.cumsum(dur)
+    total = float(t_end[-1])
+    n = max(1, math.ceil(total / period_s - 1e-12))
+    t = np.minimum(np.arange(1, n + 1) * period_s, total)
+    k = np.minimum(np.searchsorted(t_end, t - 1e-12), plen.shape[0] - 1)
+    s_move = offs[k] + (t - (t_end[k] - dur[k])) * pspd[k]  # arc length within the move
+    frac = np.clip(s_move / mlen[owner[k]], 0.0, 1.0)
+    mv = idx[owner[k]]
+    return _position_on_moves(moves, mv, frac), mv
+
+
+def _position_on_moves(moves: MoveTable, mv: NDArray[np.int64], frac: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Point at fraction ``frac`` (by length) along move ``mv`` (lines and arcs)."""
+    s = moves.start_mm[mv]
+    e = moves.end_mm[mv]
+    pos = s + (e - s) * frac[:, None]
+    is_arc = moves.kind[mv] >= MOVE_ARC_CW
+    if is_arc.any():
+        sweep_all = arc_sweep_rad(moves)
+        for plane, (a1, a2, _lin) in _PLANE_AXES.items():
+            sel = np.flatnonzero(is_arc & (moves.plane[mv] == plane))
+            if sel.size == 0:
+                continue
+            m_sel = mv[sel]
+            c = moves.center_mm[m_sel]
+            st = s[sel]
+            r = np.hypot(st[:, a1] - c[:, a1], st[:, a2] - c[:, a2])
+            t0 = np.arctan2(st[:, a2] - c[:, a2], st[:, a1] - c[:, a1])
+            sign = np.where(moves.kind[m_sel] == MOVE_ARC_CW, -1.0, 1.0)
+            ang = t0 + sign * sweep_all[m_sel] * frac[sel]
+            pos[sel, a1] = c[:, a1] + r * np.cos(ang)
+            pos[sel, a2] = c[:, a2] + r * np.sin(ang)
+            # the linear axis of a helix is already interpolated by frac
+    return pos
+
+
+def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.float64],
+                   t_in: NDArray[np.float64], t_out: NDArray[np.float64], limits: PlanLimits, tol_mm: float,
+                   filt_s: tuple[float, ...], v_nom: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Speed limits at each junction inside a group (between idx[i] and idx[i+1]) and per move (arcs).
+
+    Returns
+    -------
+    v_junction : ndarray (len(idx) - 1,)
+        Largest speed through each junction, mm/s.
+    v_move : ndarray (len(idx),)
+        Largest speed on each move from its own curvature, mm/s.
+    """
+    t1 = filt_s[0] if filt_s else 0.0
+    t_rest = filt_s[1:] if len(filt_s) > 1 else ()
+    # first moment of the filter kernel (one side) and its variance, per unit speed
+    dev_per_v = (t1 / 8.0 + sum(t * t for t in t_rest) / (24.0 * t1)) if t1 > 0 else 0.0
+    var_t2 = sum(t * t for t in filt_s) / 12.0  # variance of the summed uniform kernels, s^2
+    acc_min = float(np.min(limits.acceleration_mm_s2))
+    jerk_min = float(np.min(limits.jerk_mm_s3))
+    n = idx.shape[0]
+    v_move = np.full(n, np.inf)
+    # arcs: centripetal acceleration and jerk, and shrinkage by the filters v^2 var / (2 R)
+    is_arc = moves.kind[idx] >= MOVE_ARC_CW
+    if is_arc.any():
+        mi = idx[is_arc]
+        r = np.empty(mi.shape[0])
+        for plane, (a1, a2, _lin) in _PLANE_AXES.items():
+            sel = moves.plane[mi] == plane
+            if sel.any():
+                s, c = moves.start_mm[mi[sel]], moves.center_mm[mi[sel]]
+                r[sel] = np.hypot(s[:, a1] - c[:, a1], s[:, a2] - c[:, a2])
+        r = np.maximum(r, _EPS)
+        lim = np.sqrt(acc_min * r)
+        lim = np.minimum(lim, np.cbrt(jerk_min * r * r))
+        if var_t2 > 0 and tol_mm > 0:
+            lim = np.minimum(lim, np.sqrt(2.0 * tol_mm * r / var_t2))
+        v_move[is_arc] = lim
+    if n < 2:
+        return np.zeros(0), v_move
+    u1 = t_out[idx[:-1]]
+    u2 = t_in[idx[1:]]
+    du = np.linalg.norm(u2 - u1, axis=1)
+    vj = np.full(n - 1, np.inf)
+    # corner rounding by the filters stays within the tolerance
+    if dev_per_v > 0:
+        with np.errstate(divide="ignore"):
+            vj = np.where(du > 1e-12, tol_mm / (du * dev_per_v), np.inf) if tol_mm > 0 else np.where(du > 1e-9, 0.0, np.inf)
+    # velocity jump of every axis within what the first filter turns into its acceleration limit
+    if t1 > 0:
+        dua = np.abs(u2 - u1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            va = np.where(dua > 1e-12, limits.acceleration_mm_s2[None, :] * t1 / dua, np.inf)
+        vj = np.minimum(vj, va.min(axis=1))
+    # densely segmented curves act like arcs: curvature from the turn over the mean segment length
+    if var_t2 > 0 and tol_mm > 0:
+        seg = 0.5 * (length[idx[:-1]] + length[idx[1:]])
+        kappa = du / np.maximum(seg, _EPS)
+        with np.errstate(divide="ignore"):
+            v_curve = np.where(kappa > 1e-12, np.sqrt(2.0 * tol_mm / (kappa * var_t2)), np.inf)
+            v_cent = np.where(kappa > 1e-12, np.sqrt(acc_min / kappa), np.inf)
+        # only where the segments are shorter than the distance covered during the filter span
+        v_pair = np.minimum(v_nom[:-1], v_nom[1:])
+        short = seg < v_pair * sum(filt_s)
+        vj = np.where(short, np.minimum(vj, np.minimum(v_curve, v_cent)), vj)
+    return vj, v_move
+
+
+def _plan_group(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.float64], speed: NDArray[np.float64],
+                limits: PlanLimits, period_s: float, mode: str, tol_mm: float, jerk_tc_s: float,
+                max_passes: int) -> tuple[NDArray[np.float64], NDArray[np.int32], NDArray[np.float64]]:
+    """Plan one group (moves ``idx``, all rapids or all feeds), from rest to rest."""
+    t_in, t_out = _directions(moves)
+    v = speed[idx].copy()
+    u_abs = np.maximum(np.abs(t_in[idx]), np.abs(t_out[idx]))
+    vmax_axis = np.max(v[:, None] * u_abs, axis=0)
+    lengths = _filter_lengths(mode, vmax_axis, limits, period_s, jerk_tc_s)
+    filt_s = tuple(n * period_s for n in lengths)
+    vj, v_move = _corner_limits(moves, idx, length, t_in, t_out, limits, tol_mm, filt_s, v)
+    v = np.minimum(v, v_move)
+    span_s = sum(filt_s)
+    scale = np.ones(idx.shape[0])
+    for _ in range(max_passes):
+        ideal, mv = _sample_ideal(moves, idx, _pieces(length[idx], v * scale, vj, span_s), period_s)
+        start = moves.start_mm[idx[0]]
+        sig = np.vstack([start[None, :], ideal])
+        mv_sig = np.concatenate([[idx[0]], mv])
+        inc = np.diff(sig, axis=0)
+        for n in lengths:
+            inc = _smooth_increments(inc, n)
+        out = np.vstack([start[None, :], start + np.cumsum(inc, axis=0)])
+        delay = sum(n - 1 for n in lengths) // 2
+        mv_out = np.concatenate([np.full(delay, mv_sig[0]), mv_sig, np.full(out.shape[0] - mv_sig.shape[0] - delay,
+                                                                           mv_sig[-1])])
+        if mode == "constant_feed":
+            break
+        bad = _violations(out, limits, period_s)
+        if bad.size == 0:
+            break
+        # lower the speed of every move inside the filter window of a violating sample
+        total = sum(n - 1 for n in lengths) + 3
+        lo_s = np.clip(bad - total, 0, mv_sig.shape[0] - 1)
+        hi_s = np.clip(bad + 1, 0, mv_sig.shape[0] - 1)
+        lo_g = np.searchsorted(idx, mv_sig[lo_s])
+        hi_g = np.searchsorted(idx, mv_sig[hi_s])
+        mark = np.zeros(idx.shape[0] + 1, dtype=np.int64)
+        np.add.at(mark, lo_g, 1)
+        np.add.at(mark, hi_g + 1, -1)
+        hit = np.cumsum(mark)[:-1] > 0
+        scale[hit] *= 0.8
+    used = v * scale
+    return out[1:], mv_out[1:].astype(np.int32), used
+
+
+_Pieces = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64],
+                NDArray[np.float64]]
+
+
+def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float) -> _Pieces:
+    """Split moves into zones with their speeds: slow zones before and after each junction.
+
+    A zone long enough for the filters to finish the speed change before the
+    corner (``v_corner * span``) runs at the corner speed; the rest of the move
+    at its own speed. Moves too short for zones run at the slowest speed that
+    touches them.
+
+    Returns
+    -------
+    (length, speed, owner, offset, move_length)
+        Per piece: length (mm), speed (mm/s), index of its move within the
+        group, arc length where it starts within its move; and per move its length.
+    """
+    n = move_len.shape[0]
+    v_in = np.minimum(v, np.concatenate(([np.inf], vj)))
+    v_out = np.minimum(v, np.concatenate((vj, [np.inf])))
+    zin = np.where(v_in < v, v_in * span_s, 0.0)
+    zout = np.where(v_out < v, v_out * span_s, 0.0)
+    slow = (v_in < v) | (v_out < v)
+    short = (zin + zout >= move_len) | ((span_s == 0.0) & slow)
+    lens = np.stack([zin, move_len - zin - zout, zout], axis=1)
+    spds = np.stack([v_in, v, v_out], axis=1)
+    lens[short] = np.column_stack([move_len[short], np.zeros((int(short.sum()), 2))])
+    spds[short, 0] = np.minimum(np.minimum(v_in[short], v_out[short]), v[short])
+    offs = np.concatenate([np.zeros((n, 1)), np.cumsum(lens, axis=1)[:, :2]], axis=1)
+    owner = np.repeat(np.arange(n), 3).reshape(n, 3)
+    keep = lens > 0
+    return lens[keep], spds[keep], owner[keep], offs[keep], move_len
+
+
+def _violations(pos: NDArray[np.float64], limits: PlanLimits, period_s: float) -> NDArray[np.int64]:
+    """Sample indices where an axis's acceleration or jerk exceeds its limit (beyond the float noise of third differences)."""
+    if pos.shape[0] < 4:
+        return np.zeros(0, dtype=np.int64)
+    acc = np.diff(pos, n=2, axis=0) / period_s**2
+    jerk = np.diff(pos, n=3, axis=0) / period_s**3
+    bad_a = np.any(np.abs(acc) > limits.acceleration_mm_s2 * (1 + _FD_NOISE), axis=1)
+    bad_j = np.any(np.abs(jerk) > limits.jerk_mm_s3 * (1 + _FD_NOISE), axis=1)
+    return np.unique(np.concatenate([np.flatnonzero(bad_a) + 1, np.flatnonzero(bad_j) + 2]))
+
+
+def check_limits(ref: Reference, limits: PlanLimits) -> dict[str, NDArray[np.float64]]:
+    """Peak |velocity|, |acceleration|, |jerk| of each axis of a reference (mm/s, mm/s², mm/s³)."""
+    p = ref.pos_mm
+    ts = ref.period_s
+    out = {}
+    for name, order in (("velocity", 1), ("acceleration", 2), ("jerk", 3)):
+        if p.shape[0] > order:
+            out[name] = np.max(np.abs(np.diff(p, n=order, axis=0)), axis=0) / ts**order
+        else:
+            out[name] = np.zeros(3)
+    return out

@@ -1,0 +1,118 @@
+"""Feed planner: limits on real programs, the 7-phase profile against ruckig, corner tolerance, arcs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ilcnc.plan import PlanLimits, check_limits, plan_moves, plan_program
+from ilcnc.profile import load_profile
+from ilcnc.program import read_program
+from ilcnc.program.gcode import read_gcode
+
+from .conftest import REPO, SAMPLES
+
+PROFILE = load_profile(REPO / "configs" / "example-mill.yaml")
+
+
+def _limits(v: float = 50.0, a: float = 1000.0, j: float = 20000.0) -> PlanLimits:
+    return PlanLimits(np.full(3, v), np.full(3, v), np.full(3, a), np.full(3, j))
+
+
+def _prog(text: str):
+    return read_gcode(Path("t.ngc"), text.encode())
+
+
+@pytest.mark.parametrize("name", ["contour/compass.ngc", "contour/locket_outside.ngc", "contour/Gates_combined_R12.nc",
+                                  "contour/vcarve.ngc", "gcode/tiny_cat_outline.ngc"])
+def test_never_exceeds_axis_limits_on_real_programs(name: str) -> None:
+    prog = read_program(SAMPLES / name)
+    ref = plan_program(prog, PROFILE)
+    lim = PlanLimits.from_profile(PROFILE)
+    peak = check_limits(ref, lim)
+    assert np.all(peak["velocity"] <= lim.velocity_mm_s * (1 + 1e-5))
+    assert np.all(peak["acceleration"] <= lim.acceleration_mm_s2 * (1 + 1e-5))
+    assert np.all(peak["jerk"] <= lim.jerk_mm_s3 * (1 + 1e-5))
+    # it ends where the program ends, and visits every move in order
+    assert np.allclose(ref.pos_mm[-1], prog.moves.end_mm[-1])
+    seen = ref.move[ref.move >= 0]
+    assert np.all(np.diff(seen) >= 0)
+    # accounting for acceleration makes it slower than the feed-only estimate, never faster
+    from ilcnc.program.geometry import feed_time_s
+    rapid = min(ax.rapid_mm_min for ax in PROFILE.axes.values())
+    assert ref.duration_s >= 0.99 * feed_time_s(prog.moves, rapid)
+
+
+def test_single_move_matches_ruckig() -> None:
+    ruckig = pytest.importorskip("ruckig", reason="ruckig (test reference) not installed")
+    v, a, j = 50.0, 1000.0, 20000.0
+    prog = _prog("G21 G90\nG0 X0 Y0 Z0\nG1 X100 F3000\nM2\n")
+    ref = plan_moves(prog.moves[1:] if False else prog.moves, _limits(v, a, j), period_s=0.001,
+                     corner_tolerance_mm=0.01)
+    # the feed move alone (the rapid to the origin has zero length)
+    inp = ruckig.InputParameter(1)
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
+    inp.target_position, inp.target_velocity, inp.target_acceleration = [100.0], [0.0], [0.0]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [v], [a], [j]
+    traj = ruckig.Trajectory(1)
+    assert ruckig.Ruckig(1).calculate(inp, traj) == ruckig.Result.Working
+    x = ref.pos_mm[:, 0]
+    moving = np.flatnonzero(np.abs(np.diff(x)) > 1e-12)
+    t0 = moving[0]
+    t_ours = (moving[-1] + 1 - t0) * 0.001
+    assert t_ours == pytest.approx(traj.duration, abs=0.002)
+    # same position profile, sample by sample
+    times = np.arange(0, int(traj.duration / 0.001)) * 0.001
+    theirs = np.array([traj.at_time(t)[0][0] for t in times])
+    ours = x[t0:t0 + times.size]
+    assert np.max(np.abs(ours - theirs)) < 0.06  # mm: one servo tick of phase at 50 mm/s
+
+
+def test_corner_never_cut_by_more_than_the_tolerance() -> None:
+    prog = _prog("G21 G90\nG0 X0 Y0 Z0\nG1 X50 F3000\nY50\nM2\n")
+    for tol in (0.005, 0.05, 0.5):
+        ref = plan_moves(prog.moves, _limits(), period_s=0.001, corner_tolerance_mm=tol)
+        p = ref.pos_mm
+        # distance to the two legs of the corner (x axis, then the line x = 50)
+        d1 = np.where(p[:, 0] <= 50, np.abs(p[:, 1]), np.hypot(p[:, 0] - 50, p[:, 1]))
+        d2 = np.where(p[:, 1] >= 0, np.abs(p[:, 0] - 50), np.hypot(p[:, 0] - 50, p[:, 1]))
+        dev = np.minimum(d1, d2).max()
+        assert dev <= tol * (1 + 1e-6)
+        assert dev >= 0.5 * tol  # and the speed was not lowered more than needed
+
+
+def test_arc_is_interpolated_as_arc_within_tolerance() -> None:
+    prog = _prog("G21 G90 G17\nG0 X25 Y0 Z0\nG2 X25 Y0 I-25 J0 F3000\nM2\n")
+    ref = plan_moves(prog.moves, _limits(), period_s=0.001, corner_tolerance_mm=0.01)
+    r = np.hypot(ref.pos_mm[:, 0], ref.pos_mm[:, 1])
+    moving = ref.move == 1
+    assert np.max(np.abs(r[moving] - 25.0)) <= 0.01 + 1e-6
+    # clockwise: the angle decreases
+    ang = np.unwrap(np.arctan2(ref.pos_mm[moving, 1], ref.pos_mm[moving, 0]))
+    assert ang[-1] - ang[0] == pytest.approx(-2 * np.pi, abs=1e-3)
+
+
+def test_constant_feed_is_the_ideal_interpolator() -> None:
+    prog = _prog("G21 G90\nG0 X0 Y0 Z0\nG1 X10 F150\nY10\nM2\n")
+    ref = plan_moves(prog.moves, _limits(), period_s=0.001, mode="constant_feed")
+    v = np.linalg.norm(np.diff(ref.pos_mm, axis=0), axis=1) / 0.001
+    moving = v > 0
+    # 150 mm/min all the way, no slow-down at the corner (only the tick that straddles the vertex is a chord)
+    assert np.count_nonzero(np.abs(v[moving] - 2.5) > 1e-9) <= 1
+    assert v[moving].min() > 2.5 / np.sqrt(2) - 1e-9
+    assert ref.duration_s == pytest.approx(20.0 / 2.5, abs=0.002)
+
+
+def test_cubic_profile_has_continuous_jerk() -> None:
+    prog = _prog("G21 G90\nG0 X0 Y0 Z0\nG1 X100 F3000\nM2\n")
+    seven = plan_moves(prog.moves, _limits(), period_s=0.001, mode="seven_phase")
+    cubic = plan_moves(prog.moves, _limits(), period_s=0.001, mode="cubic", jerk_time_constant_s=0.01)
+    j7 = np.diff(seven.pos_mm[:, 0], n=3) / 1e-9
+    jc = np.diff(cubic.pos_mm[:, 0], n=3) / 1e-9
+    # the 7-phase profile jumps between 0 and +-J; the cubic one ramps (steps of J * Ts / Tj, twice that where
+    # two ramps meet)
+    assert np.max(np.abs(np.diff(j7))) > 0.9 * 20000
+    assert np.max(np.abs(np.diff(jc))) < 0.25 * 20000
+    assert cubic.duration_s == pytest.approx(seven.duration_s + 0.01, abs=0.003)
