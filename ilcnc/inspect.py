@@ -32,6 +32,7 @@ class InspectReport:
     path_length_mm: float
     feed_length_mm: float
     cycle_time_s: float
+    feed_only_time_s: float
     cycle_time_kind: str
     warnings: list[str] = field(default_factory=list)
 
@@ -49,6 +50,7 @@ class InspectReport:
             "feed_length_mm": self.feed_length_mm,
             "cycle_time_s": self.cycle_time_s,
             "cycle_time_kind": self.cycle_time_kind,
+            "feed_only_time_s": self.feed_only_time_s,
             "warnings": self.warnings,
         }
 
@@ -72,6 +74,7 @@ def inspect_program(path: Path, *, profile_path: Path | None = None, moves_out: 
     """Read a program and summarise it; optionally write its command table."""
     rapid = DEFAULT_RAPID_MM_MIN
     default_units = "mm"
+    prof = None
     if profile_path is not None:
         from ilcnc.profile import load_profile
 
@@ -86,6 +89,14 @@ def inspect_program(path: Path, *, profile_path: Path | None = None, moves_out: 
     ext = extents_mm(mv)
     if moves_out is not None:
         write_atomic(moves_out, command_table_csv(program), protect=(path,))
+    if prof is not None:
+        from ilcnc.plan import plan_program
+
+        cycle = plan_program(program, prof).duration_s
+        kind = f"planned ({prof.planner.profile}, axis limits of {prof.machine.name})"
+    else:
+        cycle = feed_time_s(mv, rapid)
+        kind = "feed-only (no acceleration; give --profile for the planned time)"
     return InspectReport(
         program=str(path),
         dialect=program.dialect,
@@ -96,14 +107,16 @@ def inspect_program(path: Path, *, profile_path: Path | None = None, moves_out: 
         extents_mm=ext.tolist(),
         path_length_mm=float(length.sum()),
         feed_length_mm=float(length[mv.kind != MOVE_RAPID].sum()),
-        cycle_time_s=feed_time_s(mv, rapid),
-        cycle_time_kind="feed-only (no acceleration)",
+        cycle_time_s=cycle,
+        feed_only_time_s=feed_time_s(mv, rapid),
+        cycle_time_kind=kind,
         warnings=list(program.warnings),
     )
 
 
 def print_report(report: InspectReport, console: Any) -> None:
     """Print the report as a rich table."""
+    from rich.markup import escape
     from rich.table import Table
 
     t = Table(title=report.program, show_header=False)
@@ -118,7 +131,9 @@ def print_report(report: InspectReport, console: Any) -> None:
     for a, name in enumerate("XYZ"):
         t.add_row(f"{name} extent (mm)", f"{ext[0, a]:.3f} .. {ext[1, a]:.3f}")
     t.add_row("path length (mm)", f"{report.path_length_mm:.3f}")
-    t.add_row("cycle time (s)", f"{report.cycle_time_s:.1f}  [{report.cycle_time_kind}]")
+    t.add_row("cycle time (s)", f"{report.cycle_time_s:.1f}  ({escape(report.cycle_time_kind)})")
+    if report.cycle_time_s != report.feed_only_time_s:
+        t.add_row("feed-only estimate (s)", f"{report.feed_only_time_s:.1f}")
     console.print(t)
     for w in report.warnings:
-        console.print(f"[yellow]warning:[/yellow] {w}")
+        console.print(f"[yellow]warning:[/yellow] {escape(w)}")

@@ -14,7 +14,7 @@ from ilcnc.corrections import write_corrections
 from ilcnc.export import export_program
 from ilcnc.program import read_program
 
-from .conftest import OWN, SAMPLES, sample_files
+from .conftest import OWN, REPO, SAMPLES, sample_files
 
 ROUND_TRIP = sample_files("gcode", "contour", "interp")
 
@@ -158,3 +158,20 @@ def test_rewritten_numbers_keep_the_source_spelling(tmp_path: Path) -> None:
     out = tmp_path / "o.nc"
     export_program(src, out, corrections_path=csv, min_decimals=3)
     assert out.read_text().splitlines()[2:4] == ["G1 X10.1244 Y+5.002 F100", "X-.4999 Y2"]
+
+
+def test_inspect_reports_planned_cycle_time_with_a_profile(tmp_path: Path) -> None:
+    import json
+
+    src = SAMPLES / "contour" / "compass.ngc"
+    plain = json.loads(_cli("inspect", str(src), "--json").stdout)
+    planned = json.loads(_cli("inspect", str(src), "--json", "--profile", str(REPO / "configs" / "example-mill.yaml")).stdout)
+    assert plain["g01_commands"] == planned["g01_commands"] == 2994
+    assert planned["cycle_time_kind"].startswith("planned")
+    # acceleration and corner slow-downs make the real cycle longer than length / feed
+    assert planned["cycle_time_s"] > planned["feed_only_time_s"]
+    moves = tmp_path / "m.csv"
+    r = _cli("inspect", str(src), "--moves", str(moves))
+    assert r.returncode == 0
+    rows = moves.read_text().splitlines()
+    assert rows[0] == "k,line,x,y,z,f" and len(rows) == 2995
