@@ -105,6 +105,15 @@ class Reference:
 
 
 @dataclass(frozen=True, slots=True)
+class _Geometry:
+    """Per-move geometry computed once per plan: start and end tangents, arc sweeps."""
+
+    t_in: NDArray[np.float64]
+    t_out: NDArray[np.float64]
+    sweep: NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
 class PlanLimits:
     """Per-axis kinematic limits in mm and s (arrays of 3; inf for an axis without limits)."""
 
@@ -183,6 +192,7 @@ def plan_moves(
         return empty
     active = length > _EPS
     groups = _groups(moves.kind, active)
+    geo = _Geometry(*_directions(moves), arc_sweep_rad(moves))
     pieces_pos: list[NDArray[np.float64]] = []
     pieces_move: list[NDArray[np.int32]] = []
     start_pos = moves.start_mm[0]
@@ -194,7 +204,7 @@ def plan_moves(
         idx = idx[active[idx]]
         if idx.size == 0:
             continue
-        pos, mv_idx, used = _plan_group(moves, idx, length, speed, limits, period_s, mode, corner_tolerance_mm,
+        pos, mv_idx, used = _plan_group(moves, geo, idx, length, speed, limits, period_s, mode, corner_tolerance_mm,
                                         jerk_time_constant_s, max_passes)
         final_speed[idx] = used
         pieces_pos.append(pos)
@@ -312,7 +322,7 @@ def _smooth_increments(d: NDArray[np.float64], n: int) -> NDArray[np.float64]:
     return out / n
 
 
-def _sample_ideal(moves: MoveTable, idx: NDArray[np.int64], pieces: _Pieces, period_s: float
+def _sample_ideal(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], pieces: _Pieces, period_s: float
                   ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Positions of the ideal interpolator at every servo tick of a group, and the move index there."""
     plen, pspd, owner, offs, mlen = pieces
@@ -325,17 +335,19 @@ def _sample_ideal(moves: MoveTable, idx: NDArray[np.int64], pieces: _Pieces, per
     s_move = offs[k] + (t - (t_end[k] - dur[k])) * pspd[k]  # arc length within the move
     frac = np.clip(s_move / mlen[owner[k]], 0.0, 1.0)
     mv = idx[owner[k]]
-    return _position_on_moves(moves, mv, frac), mv
+    return _position_on_moves(moves, mv, frac, geo.sweep), mv
 
 
-def _position_on_moves(moves: MoveTable, mv: NDArray[np.int64], frac: NDArray[np.float64]) -> NDArray[np.float64]:
+def _position_on_moves(moves: MoveTable, mv: NDArray[np.int64], frac: NDArray[np.float64],
+                       sweep_all: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """Point at fraction ``frac`` (by length) along move ``mv`` (lines and arcs)."""
     s = moves.start_mm[mv]
     e = moves.end_mm[mv]
     pos = s + (e - s) * frac[:, None]
     is_arc = moves.kind[mv] >= MOVE_ARC_CW
     if is_arc.any():
-        sweep_all = arc_sweep_rad(moves)
+        if sweep_all is None:
+            sweep_all = arc_sweep_rad(moves)
         for plane, (a1, a2, _lin) in _PLANE_AXES.items():
             sel = np.flatnonzero(is_arc & (moves.plane[mv] == plane))
             if sel.size == 0:
@@ -420,11 +432,12 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
     return vj, v_move
 
 
-def _plan_group(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.float64], speed: NDArray[np.float64],
+def _plan_group(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], length: NDArray[np.float64],
+                speed: NDArray[np.float64],
                 limits: PlanLimits, period_s: float, mode: str, tol_mm: float, jerk_tc_s: float,
                 max_passes: int) -> tuple[NDArray[np.float64], NDArray[np.int32], NDArray[np.float64]]:
     """Plan one group (moves ``idx``, all rapids or all feeds), from rest to rest."""
-    t_in, t_out = _directions(moves)
+    t_in, t_out = geo.t_in, geo.t_out
     v = speed[idx].copy()
     u_abs = np.maximum(np.abs(t_in[idx]), np.abs(t_out[idx]))
     vmax_axis = np.max(v[:, None] * u_abs, axis=0)
@@ -435,7 +448,7 @@ def _plan_group(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.flo
     span_s = sum(filt_s)
     scale = np.ones(idx.shape[0])
     for _ in range(max_passes):
-        ideal, mv = _sample_ideal(moves, idx, _pieces(length[idx], v * scale, vj, span_s), period_s)
+        ideal, mv = _sample_ideal(moves, geo, idx, _pieces(length[idx], v * scale, vj, span_s), period_s)
         start = moves.start_mm[idx[0]]
         sig = np.vstack([start[None, :], ideal])
         mv_sig = np.concatenate([[idx[0]], mv])
