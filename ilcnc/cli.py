@@ -102,10 +102,60 @@ def _not_implemented(name: str) -> NoReturn:
     raise typer.Exit(1)
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
-def simulate() -> None:
-    """Virtual CNC run (not implemented yet)."""
-    _not_implemented("simulate")
+@app.command()
+def simulate(
+    program: Annotated[Path, typer.Argument(help="Part program to run on the virtual CNC.")],
+    profile: Annotated[Path, typer.Option("--profile", help="Machine profile YAML (limits, planner, drives).")],
+    out: Annotated[Path | None, typer.Option("--out", help="Write the axis log CSV (t_s,k,line,x_ref,...,z_act).")] = None,
+    against: Annotated[
+        Path | None, typer.Option("--against", help="Measure the contour error against this program's path.")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Run PROGRAM on the virtual CNC: planned reference, drive models, contour error."""
+    from ilcnc import simulate as sim_mod
+    from ilcnc.logs import write_axis_log
+    from ilcnc.profile import load_profile
+    from ilcnc.program import read_program
+
+    try:
+        prof = load_profile(profile)
+        prog = read_program(program, default_units=prof.machine.units)
+        orig = read_program(against, default_units=prof.machine.units) if against is not None else None
+        console = _console()
+        if as_json:
+            result = sim_mod.simulate_program(prog, prof, against=orig)
+        else:
+            with console.status("simulating ...") as status:
+                result = sim_mod.simulate_program(
+                    prog, prof, against=orig, progress=lambda stage: status.update(f"simulating: {stage} ...")
+                )
+        if out is not None:
+            protect = (program, profile) + ((against,) if against is not None else ())
+            write_axis_log(out, result.axis_log(), protect=protect)
+    except IlcncError as exc:
+        _fail(exc)
+    if as_json:
+        typer.echo(json.dumps(result.to_json(prog)))
+        return
+    _print_simulation(result, prog, console, out)
+
+
+def _print_simulation(result, prog, console, out: Path | None) -> None:
+    from rich.table import Table
+
+    t = Table(title=f"virtual CNC: {prog.path.name}", show_header=False)
+    t.add_column("what")
+    t.add_column("value")
+    t.add_row("samples", f"{result.reference.n_samples} at {result.reference.period_s * 1e3:g} ms")
+    t.add_row("cycle time (s)", f"{result.cycle_time_s:.2f}")
+    for key in ("max", "mean", "rms"):
+        t.add_row(f"contour error {key} (µm)", f"{result.stats[key] * 1e3:.2f}")
+    worst = result.worst(prog)
+    t.add_row("worst command", f"k={worst['k']} (line {worst['line']})")
+    if out is not None:
+        t.add_row("axis log", str(out))
+    console.print(t)
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})

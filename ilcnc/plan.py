@@ -57,6 +57,8 @@ __all__ = ["PlanLimits", "Reference", "check_limits", "plan_moves", "plan_progra
 _PLANE_AXES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
 _EPS = 1e-9
 _HOLD_SAMPLES = 3
+#: In-position wait between rapids and feed moves, s (CNCs check in-position after G0).
+IN_POSITION_S = 0.1
 #: Relative float noise of finite-difference jerk on positions of ~1e2 mm at a 1 ms period
 #: (8·eps·|x|/Ts³ plus the cumulative sums of the filters); limits are checked beyond it.
 _FD_NOISE = 1e-5
@@ -160,6 +162,7 @@ def plan_moves(
     mode: str = "seven_phase",
     corner_tolerance_mm: float = 0.01,
     jerk_time_constant_s: float = 0.01,
+    in_position_s: float = IN_POSITION_S,
     max_passes: int = 12,
 ) -> Reference:
     """Plan the reference trajectory of a move table.
@@ -178,6 +181,8 @@ def plan_moves(
         Largest distance the planned path may cut a corner or shrink an arc, mm.
     jerk_time_constant_s : float
         Third filter length of the ``cubic`` profile, s.
+    in_position_s : float
+        Stand-still between a rapid group and a feed group (in-position check), s.
     max_passes : int
         Re-planning passes allowed to remove limit violations per group.
     """
@@ -209,10 +214,12 @@ def plan_moves(
         final_speed[idx] = used
         pieces_pos.append(pos)
         pieces_move.append(mv_idx)
-        # stand still for a few ticks between groups: the machine stops there, and the
-        # finite differences of one group's end and the next one's start must not mix
-        pieces_pos.append(np.repeat(pos[-1:], _HOLD_SAMPLES, axis=0))
-        pieces_move.append(np.repeat(mv_idx[-1:], _HOLD_SAMPLES))
+        # stand still between groups: an in-position check after rapids (and before them) as CNCs
+        # do, so the drives settle before the next group; it also keeps the finite differences of one
+        # group's end and the next one's start apart
+        hold = max(_HOLD_SAMPLES, math.ceil(in_position_s / period_s))
+        pieces_pos.append(np.repeat(pos[-1:], hold, axis=0))
+        pieces_move.append(np.repeat(mv_idx[-1:], hold))
     if len(pieces_pos) > 1:  # no stand-still after the last group
         pieces_pos.pop()
         pieces_move.pop()

@@ -1,0 +1,177 @@
+"""The virtual CNC: plan the reference, run the drives, measure the contour error.
+
+``simulate_program`` is what ``ilcnc simulate`` and the learning loop call:
+
+    reference r(t)  = plan (jerk-limited FIR interpolation, :mod:`ilcnc.plan`)
+    actual q(t)     = drive models of the profile (:mod:`ilcnc.drives`)
+    contour error   = exact windowed nearest distance of q(t) to the programmed
+                      path (:mod:`ilcnc.contour`), optionally to another
+                      program's path (a compensated program is judged against
+                      the original drawing)
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ilcnc.errors import InputError
+from ilcnc.logs import AxisLog
+from ilcnc.plan import Reference, plan_program
+from ilcnc.profile import MachineProfile
+from ilcnc.program.model import MOVE_RAPID, Program
+
+__all__ = ["SimulationResult", "simulate_program"]
+
+
+@dataclass(slots=True)
+class SimulationResult:
+    """Everything one virtual-CNC run produced.
+
+    Attributes
+    ----------
+    reference : Reference
+        Planned reference r(t).
+    actual_mm : ndarray (N, 3)
+        Actual positions q(t), mm.
+    error : ContourError
+        Exact contour error of every sample.
+    feed_mask : ndarray (N,) bool
+        Samples on feed moves (the statistics are over these; rapids are not cut).
+    stats : dict
+        ``max``, ``mean``, ``rms`` contour error over feed samples, mm.
+    worst_sample : int
+        Sample of the largest contour error (-1 when there is none).
+    timings_s : dict
+        Wall time of each stage, s.
+    """
+
+    reference: Reference
+    actual_mm: NDArray[np.float64]
+    error: Any
+    feed_mask: NDArray[np.bool_]
+    stats: dict[str, float]
+    worst_sample: int
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def cycle_time_s(self) -> float:
+        return self.reference.duration_s
+
+    def worst(self, program: Program) -> dict[str, int]:
+        """Command index and source line of the worst sample (of ``program``'s path)."""
+        if self.worst_sample < 0:
+            return {"k": -1, "line": 0}
+        seg = int(self.error.seg[self.worst_sample])
+        if seg < 0:
+            seg = int(self.reference.move[self.worst_sample])
+        return {"k": int(program.moves.command[seg]), "line": int(program.moves.line[seg])}
+
+    def axis_log(self) -> AxisLog:
+        """The run as an axis log (DESIGN.md CSV format)."""
+        ref = self.reference
+        return AxisLog(ref.t_s, ref.command.astype(np.int64), ref.line.astype(np.int64), ref.pos_mm, self.actual_mm)
+
+    def to_json(self, program: Program) -> dict[str, Any]:
+        return {
+            "program": str(program.path),
+            "samples": self.reference.n_samples,
+            "cycle_time_s": self.cycle_time_s,
+            "contour_error_mm": dict(self.stats),
+            "worst": self.worst(program),
+        }
+
+
+def simulate_program(
+    program: Program,
+    profile: MachineProfile,
+    *,
+    against: Program | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> SimulationResult:
+    """Run a program on the virtual CNC of a profile.
+
+    Parameters
+    ----------
+    program : Program
+        What the machine runs.
+    profile : MachineProfile
+        Limits, planner and drive models.
+    against : Program, optional
+        Measure the contour error against this program's path instead (it
+        must have the same moves, e.g. the original of a compensated program).
+    progress : callable, optional
+        Called with the name of each stage as it starts.
+
+    Raises
+    ------
+    InputError
+        The program has unsupported constructs, or ``against`` does not
+        match it move for move.
+    """
+    from ilcnc.contour import PathGeometry, contour_error
+    from ilcnc.drives import simulate_drives
+
+    program.require_complete()
+    target = against if against is not None else program
+    if against is not None:
+        against.require_complete()
+        if len(against.moves) != len(program.moves) or not np.array_equal(against.moves.kind, program.moves.kind):
+            raise InputError(against.path, None,
+                             f"--against program has {len(against.moves)} moves, {program.path.name} has "
+                             f"{len(program.moves)}: it is not the same part (only coordinates may differ)")
+    _check_travel(program, profile)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    if progress:
+        progress("plan")
+    ref = plan_program(program, profile)
+    timings["plan"] = time.perf_counter() - t0
+    if ref.n_samples == 0:
+        raise InputError(program.path, None, "the program has no motion to simulate")
+    t0 = time.perf_counter()
+    if progress:
+        progress("drives")
+    act = simulate_drives(ref.pos_mm, profile)
+    timings["drives"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if progress:
+        progress("contour")
+    path = PathGeometry.from_moves(target.moves)
+    hint = np.maximum(ref.move, 0)
+    err = contour_error(path, act, hint)
+    timings["contour"] = time.perf_counter() - t0
+    mv = np.maximum(ref.move, 0)
+    feed = (ref.move >= 0) & (target.moves.kind[mv] != MOVE_RAPID)
+    d = np.where(feed & np.isfinite(err.dist_mm), err.dist_mm, np.nan)
+    if np.all(np.isnan(d)):
+        stats = {"max": 0.0, "mean": 0.0, "rms": 0.0}
+        worst = -1
+    else:
+        worst = int(np.nanargmax(d))
+        stats = {"max": float(np.nanmax(d)), "mean": float(np.nanmean(d)), "rms": float(np.sqrt(np.nanmean(d * d)))}
+    return SimulationResult(ref, act, err, feed, stats, worst, timings)
+
+
+def _check_travel(program: Program, profile: MachineProfile) -> None:
+    """Refuse a program whose moves leave the machine's travel (profile ``machine.travel_mm``)."""
+    travel = profile.machine.travel_mm
+    if not travel:
+        return
+    mv = program.moves
+    for a, name in enumerate("xyz"):
+        if name not in travel:
+            continue
+        lo, hi = travel[name]
+        pts = mv.end_mm[:, a]
+        bad = np.flatnonzero((pts < lo - 1e-9) | (pts > hi + 1e-9))
+        if bad.size:
+            i = int(bad[0])
+            raise InputError(program.path, int(mv.line[i]),
+                             f"move goes to {name.upper()}{pts[i]:.3f} mm, outside the machine travel "
+                             f"{lo:g}..{hi:g} mm of profile {profile.machine.name}")
