@@ -34,6 +34,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, ClassVar, NoReturn
 
+import numpy as np
 import yaml
 
 from ilcnc.errors import InputError, ProfileError
@@ -42,6 +43,7 @@ from ilcnc.fileio import read_bytes
 __all__ = [
     "AXIS_NAMES",
     "DRIVE_MODELS",
+    "MAX_COEFFS",
     "MM_PER_INCH",
     "SPECS",
     "AxisProfile",
@@ -57,7 +59,9 @@ __all__ = [
     "PlannerSection",
     "SopdtDrive",
     "Spec",
+    "TransferFunctionDrive",
     "default_profile",
+    "has_position_loop",
     "load_profile",
     "profile_from_dict",
     "schema_markdown",
@@ -68,6 +72,9 @@ AXIS_NAMES: tuple[str, ...] = ("x", "y", "z")
 
 #: Millimetres per inch (exact).
 MM_PER_INCH = 25.4
+
+#: Most coefficients a ``"coeffs"`` key (a polynomial in s) may have.
+MAX_COEFFS = 10
 
 
 class _Required:
@@ -97,8 +104,10 @@ class Spec:
         ``"section"`` (a mapping of fixed keys), ``"axis_map"`` (a mapping
         keyed by axis name), ``"float"``, ``"int"``, ``"str"``, ``"choice"``,
         ``"axis_float"`` (a number, or a mapping of axis name to number),
-        ``"range_pair"`` (a list ``[min, max]`` with min < max) or
-        ``"axis_pair"`` (a list of two different axis names).
+        ``"range_pair"`` (a list ``[min, max]`` with min < max),
+        ``"axis_pair"`` (a list of two different axis names) or
+        ``"coeffs"`` (a list of 1 to :data:`MAX_COEFFS` finite polynomial
+        coefficients, the first non-zero).
     doc : str
         One-sentence description (goes into ``docs/profile.md``).
     unit : str
@@ -202,6 +211,7 @@ _SOPDT = (f"{_DRIVE}.model", "sopdt")
 _MDPID = (f"{_DRIVE}.model", "mass_damper_pid")
 _PFF = (f"{_DRIVE}.model", "p_ff_friction")
 _FOD = (f"{_DRIVE}.model", "first_order_delay")
+_TF = (f"{_DRIVE}.model", "transfer_function")
 _LAW_P = ("learning.law", "p")
 _LAW_PID = ("learning.law", "pid_ace")
 _LAW_SO = ("learning.law", "second_order")
@@ -275,7 +285,7 @@ SPECS: tuple[Spec, ...] = (
     _c(
         f"{_DRIVE}.model",
         "Which drive model; each model has its own parameters below.",
-        ("sopdt", "mass_damper_pid", "p_ff_friction", "first_order_delay"),
+        ("sopdt", "mass_damper_pid", "p_ff_friction", "first_order_delay", "transfer_function"),
     ),
     # sopdt (seed 004)
     _f(
@@ -349,6 +359,19 @@ SPECS: tuple[Spec, ...] = (
         when=_PFF,
     ),
     _f(
+        f"{_DRIVE}.velocity_integral_time_s",
+        "Integral time Ti of a PI velocity loop (force = gain·(e_v + ∫e_v dt / Ti)), as in seed 001's speed PI;"
+        " it removes the steady velocity error friction causes and makes the quadrant glitch at a velocity"
+        " reversal. Absent: a proportional velocity loop.",
+        "s",
+        0,
+        10,
+        lo_open=True,
+        default=None,
+        when=_PFF,
+        default_doc="none (P velocity loop)",
+    ),
+    _f(
         f"{_DRIVE}.inertia_kg",
         "Moving mass of the axis (table, workpiece and rotor inertia as an equivalent mass); required when any"
         " friction term is non-zero.",
@@ -409,11 +432,37 @@ SPECS: tuple[Spec, ...] = (
         default=1.0,
         when=_FOD,
     ),
+    # transfer_function (seed 003)
+    Spec(
+        f"{_DRIVE}.numerator",
+        "coeffs",
+        "Numerator of the axis transfer function, coefficients in descending powers of s (first non-zero);"
+        " it must have fewer coefficients than the denominator (strictly proper).",
+        when=_TF,
+    ),
+    Spec(
+        f"{_DRIVE}.denominator",
+        "coeffs",
+        "Denominator of the axis transfer function, coefficients in descending powers of s (first non-zero).",
+        when=_TF,
+    ),
+    Spec(
+        f"{_DRIVE}.feedback",
+        "choice",
+        "unity: numerator/denominator is the forward path L(s) from position error to position (position"
+        " controller × axis, as G1, G2 of seed 003), closed with unity feedback; none: it is already the closed"
+        " loop from reference to position.",
+        default="unity",
+        choices=("unity", "none"),
+        when=_TF,
+    ),
     # controller ------------------------------------------------------------
     _sec("controller", "Controller structure around the axis drives."),
     _c(
         "controller.type",
-        "independent: each axis on its own; cross_coupled: a cross-coupled contour controller (seed 003) on two axes.",
+        "independent: each axis on its own; cross_coupled: a cross-coupled contour controller (seed 003) on two axes,"
+        " which both need a position loop (mass_damper_pid, p_ff_friction, sopdt with position_gain_1_s or"
+        " transfer_function with unity feedback).",
         ("independent", "cross_coupled"),
         default="independent",
     ),
@@ -695,7 +744,8 @@ class PFfFrictionDrive:
     ``Kv = kp_m_min_mm`` (m/min)/mm ``= kp_1_s`` 1/s. The velocity loop is a
     proportional controller on the moving mass with force gain
     ``2π·velocity_bandwidth_hz·inertia_kg`` (a first-order velocity loop
-    without friction). Friction opposes the motion with
+    without friction), or a PI controller when ``velocity_integral_time_s``
+    is given. Friction opposes the motion with
     ``F(v) = sign(v)·[F_c + (F_s − F_c)·exp(−(v/v_s)²)] + B·v``.
 
     Parameters
@@ -706,6 +756,8 @@ class PFfFrictionDrive:
         Velocity feed-forward gain, dimensionless.
     velocity_bandwidth_hz : float
         Velocity loop bandwidth, Hz.
+    velocity_integral_time_s : float or None
+        Integral time of a PI velocity loop, s (``None``: P velocity loop).
     inertia_kg : float or None
         Moving mass, kg (``None`` when there is no friction).
     coulomb_n : float
@@ -722,6 +774,7 @@ class PFfFrictionDrive:
     kp_m_min_mm: float
     kff: float = _default(f"{_DRIVE}.kff", "p_ff_friction")
     velocity_bandwidth_hz: float = _default(f"{_DRIVE}.velocity_bandwidth_hz", "p_ff_friction")
+    velocity_integral_time_s: float | None = _default(f"{_DRIVE}.velocity_integral_time_s", "p_ff_friction")
     inertia_kg: float | None = _default(f"{_DRIVE}.inertia_kg", "p_ff_friction")
     coulomb_n: float = _default(f"{_DRIVE}.coulomb_n", "p_ff_friction")
     viscous_n_s_mm: float = _default(f"{_DRIVE}.viscous_n_s_mm", "p_ff_friction")
@@ -761,17 +814,71 @@ class FirstOrderDelayDrive:
     gain: float = _default(f"{_DRIVE}.gain", "first_order_delay")
 
 
+@dataclass(frozen=True)
+class TransferFunctionDrive:
+    """An axis given as a rational transfer function in s (seed 003).
+
+    With ``feedback = "unity"`` the polynomials are the forward path
+    ``L(s) = numerator(s) / denominator(s)`` from position error (mm) to
+    position (mm) — position controller times axis, like seed 003's
+    ``G1 = (2s + 11.76)/(s² + 12s)`` — and the closed loop is
+    ``q/r = L/(1 + L)``. With ``feedback = "none"`` they are the closed loop
+    ``q/r`` itself.
+
+    Parameters
+    ----------
+    numerator : tuple of float
+        Coefficients in descending powers of s (units make the ratio mm/mm).
+    denominator : tuple of float
+        Coefficients in descending powers of s; more of them than the
+        numerator (strictly proper).
+    feedback : str
+        ``"unity"`` or ``"none"``.
+    """
+
+    model: ClassVar[str] = "transfer_function"
+    numerator: tuple[float, ...]
+    denominator: tuple[float, ...]
+    feedback: str = _default(f"{_DRIVE}.feedback", "transfer_function")
+
+
 #: Any drive model.
-DriveModel = SopdtDrive | MassDamperPidDrive | PFfFrictionDrive | FirstOrderDelayDrive
+DriveModel = SopdtDrive | MassDamperPidDrive | PFfFrictionDrive | FirstOrderDelayDrive | TransferFunctionDrive
 
 #: Drive model name (``axes.<axis>.drive.model``) to its dataclass.
 DRIVE_MODELS: dict[str, type[DriveModel]] = {
-    cls.model: cls for cls in (SopdtDrive, MassDamperPidDrive, PFfFrictionDrive, FirstOrderDelayDrive)
+    cls.model: cls
+    for cls in (SopdtDrive, MassDamperPidDrive, PFfFrictionDrive, FirstOrderDelayDrive, TransferFunctionDrive)
 }
 
 
 def _drive_params(drive: DriveModel) -> dict[str, Any]:
-    return {f.name: getattr(drive, f.name) for f in fields(drive)}
+    return {f.name: (list(v) if isinstance(v := getattr(drive, f.name), tuple) else v) for f in fields(drive)}
+
+
+def has_position_loop(drive: DriveModel) -> bool:
+    """True when ``drive`` closes a position loop that a cross-coupled controller can act on.
+
+    Parameters
+    ----------
+    drive : DriveModel
+        The drive model.
+
+    Returns
+    -------
+    bool
+        ``True`` for mass_damper_pid, p_ff_friction, sopdt with a position
+        gain and transfer_function with unity feedback; ``False`` for
+        first_order_delay (a closed loop given as a whole), sopdt without a
+        position loop and transfer_function without feedback.
+    """
+    if isinstance(drive, (MassDamperPidDrive, PFfFrictionDrive)):
+        return True
+    if isinstance(drive, SopdtDrive):
+        return drive.position_gain_1_s is not None
+    if isinstance(drive, TransferFunctionDrive):
+        return drive.feedback == "unity"
+    return False
 
 
 @dataclass(frozen=True)
@@ -1350,7 +1457,24 @@ class _Validator:
                 shown = f"[{', '.join(str(e) for e in v)}]" if isinstance(v, (list, tuple)) else _got(v)
                 self.fail(path, f"{want}, got {shown}")
             return (v[0], v[1])
+        if kind == "coeffs":
+            return self.coeffs(spec, path, v)
         raise AssertionError(kind)  # pragma: no cover
+
+    def coeffs(self, spec: Spec, path: tuple[str, ...], v: Any) -> tuple[float, ...]:
+        """Validate a list of polynomial coefficients (descending powers of s)."""
+        want = (
+            f"must be a list of 1 to {MAX_COEFFS} finite numbers (coefficients in descending powers of s,"
+            " the first non-zero)"
+        )
+        if not isinstance(v, (list, tuple)) or not 1 <= len(v) <= MAX_COEFFS:
+            self.fail(path, f"{want}, got {_got(v) if not isinstance(v, (list, tuple)) else f'{len(v)} items'}")
+        for i, e in enumerate(v):
+            if not _is_number(e) or not math.isfinite(e) or not self.in_range(spec, e):
+                self.fail((*path, str(i)), f"{want}, got {_got(e)}", line_path=path)
+        if v[0] == 0:
+            self.fail(path, f"{want}, got a leading 0")
+        return tuple(float(e) for e in v)
 
     @staticmethod
     def in_range(spec: Spec, x: float) -> bool:
@@ -1421,6 +1545,15 @@ def _cross_checks(d: dict[str, Any], fail: _Fail) -> None:
                     ("controller", "coupled_axes"),
                     f"axis {ax} is not defined under axes (defined: {names}); cross-coupling needs two defined axes",
                 )
+        for ax in ctl["coupled_axes"]:
+            drv = dict(axes[ax]["drive"])
+            if not has_position_loop(DRIVE_MODELS[drv.pop("model")](**drv)):
+                fail(
+                    ("controller", "coupled_axes"),
+                    f"axis {ax} has no position loop for the cross-coupled controller to act on (axes.{ax}.drive"
+                    " must be mass_damper_pid, p_ff_friction, sopdt with position_gain_1_s or transfer_function"
+                    " with feedback unity)",
+                )
     for name, g in d["learning"]["gains"].items():
         if isinstance(g, dict):
             for ax in g:
@@ -1436,6 +1569,8 @@ def _cross_checks(d: dict[str, Any], fail: _Fail) -> None:
     for ax, a in axes.items():
         drv = a["drive"]
         p = ("axes", ax, "drive")
+        if drv["model"] == "transfer_function":
+            _transfer_function_checks(drv, p, fail)
         if drv["model"] != "p_ff_friction":
             continue
         friction = drv["coulomb_n"] > 0 or drv["viscous_n_s_mm"] > 0 or drv["static_n"] > 0
@@ -1454,6 +1589,28 @@ def _cross_checks(d: dict[str, Any], fail: _Fail) -> None:
                 f"must be > 0 ({rng}) when static_n > coulomb_n, got {_num(drv['stribeck_velocity_mm_s'])}",
                 line_path=p if (*p, "stribeck_velocity_mm_s") not in fail.lines else None,
             )
+
+
+def _transfer_function_checks(drv: dict[str, Any], p: tuple[str, ...], fail: _Fail) -> None:
+    """A transfer_function drive must be strictly proper and its closed loop stable."""
+    num, den = drv["numerator"], drv["denominator"]
+    if len(num) >= len(den):
+        fail(
+            (*p, "numerator"),
+            f"must have fewer coefficients than denominator ({len(den)}): the axis transfer function must be"
+            f" strictly proper, got {len(num)}",
+        )
+    char = list(den)
+    if drv["feedback"] == "unity":
+        char = [c + n for c, n in zip(char, [0.0] * (len(den) - len(num)) + list(num), strict=True)]
+    if char[0] == 0:
+        fail((*p, "denominator"), "the closed-loop characteristic polynomial (denominator + numerator) has a leading 0")
+    poles = np.roots(char)
+    bad = [z for z in poles if z.real >= 0]
+    if bad:
+        what = "1 + L(s)" if drv["feedback"] == "unity" else "the closed loop"
+        shown = ", ".join(f"{z.real:.4g}{z.imag:+.4g}j" if abs(z.imag) > 0 else f"{z.real:.4g}" for z in bad)
+        fail((*p, "denominator"), f"{what} is unstable: pole(s) with real part >= 0: {shown}")
 
 
 def _build(d: dict[str, Any], path: Path | None, text: str) -> MachineProfile:
@@ -1637,6 +1794,7 @@ def _doc_type(s: Spec) -> str:
         "axis_float": "number or per-axis",
         "range_pair": "[min, max]",
         "axis_pair": "[axis, axis]",
+        "coeffs": "[number, ...]",
     }[s.kind]
 
 
@@ -1660,7 +1818,9 @@ def schema_markdown() -> str:
             lines += [f"### {title}", "", *header]
             for s in specs:
                 desc = s.doc.replace("|", "\\|")
-                rng = s.range_text() if s.kind not in ("section", "axis_map", "str", "axis_pair") else ""
+                rng = s.range_text() if s.kind not in ("section", "axis_map", "str", "axis_pair", "coeffs") else ""
+                if s.kind == "coeffs":
+                    rng = f"1 to {MAX_COEFFS} finite numbers, the first non-zero"
                 if s.kind == "axis_pair":
                     rng = "two different of " + ", ".join(AXIS_NAMES)
                 lines.append(

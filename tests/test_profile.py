@@ -20,7 +20,9 @@ from ilcnc.profile import (
     MassDamperPidDrive,
     PFfFrictionDrive,
     SopdtDrive,
+    TransferFunctionDrive,
     default_profile,
+    has_position_loop,
     load_profile,
     profile_from_dict,
     schema_markdown,
@@ -355,7 +357,7 @@ def test_bad_choice(tmp_path: Path) -> None:
     msg = error_of(tmp_path, text)
     assert msg.endswith(
         f"mill.yaml:{line_of(text, 'pt1')}: axes.y.drive.model: must be one of sopdt, mass_damper_pid,"
-        " p_ff_friction, first_order_delay, got 'pt1'"
+        " p_ff_friction, first_order_delay, transfer_function, got 'pt1'"
     )
 
 
@@ -656,3 +658,99 @@ def _with(d: dict[str, Any], path: tuple[str, ...], value: Any) -> dict[str, Any
         node = node.setdefault(key, {})
     node[path[-1]] = value
     return out
+
+
+# -- transfer_function drives, PI velocity loop, cross-coupling checks ----------
+
+
+def test_transfer_function_drive(tmp_path: Path) -> None:
+    text = MINIMAL.replace(
+        "      model: first_order_delay\n      time_constant_s: 0.02\n",
+        "      model: transfer_function\n      numerator: [1.5, 3]\n      denominator: [1, 5, 0]\n",
+    )
+    p = load_profile(write(tmp_path, text))
+    assert p.axes["y"].drive == TransferFunctionDrive(numerator=(1.5, 3.0), denominator=(1.0, 5.0, 0.0))
+    assert p.axes["y"].drive.feedback == "unity"
+    assert profile_from_dict(p.to_dict()) == p
+    assert load_profile(write(tmp_path, p.to_yaml(), "dumped.yaml")) == p
+    assert p.to_dict()["axes"]["y"]["drive"]["numerator"] == [1.5, 3.0]
+
+
+@pytest.mark.parametrize(
+    ("drive", "fragment", "expected"),
+    [
+        (
+            "{model: transfer_function, numerator: [1, 2, 3], denominator: [1, 5, 0]}",
+            "transfer_function",
+            "axes.x.drive.numerator: must have fewer coefficients than denominator (3): the axis transfer function"
+            " must be strictly proper, got 3",
+        ),
+        (
+            "{model: transfer_function, numerator: [0, 2], denominator: [1, 5, 0]}",
+            "transfer_function",
+            "axes.x.drive.numerator: must be a list of 1 to 10 finite numbers (coefficients in descending powers of s,"
+            " the first non-zero), got a leading 0",
+        ),
+        (
+            "{model: transfer_function, numerator: [1, x], denominator: [1, 5, 0]}",
+            "transfer_function",
+            "axes.x.drive.numerator.1: must be a list of 1 to 10 finite numbers (coefficients in descending powers"
+            " of s, the first non-zero), got 'x'",
+        ),
+        (
+            "{model: transfer_function, numerator: 3, denominator: [1, 5, 0]}",
+            "transfer_function",
+            "axes.x.drive.numerator: must be a list of 1 to 10 finite numbers (coefficients in descending powers of"
+            " s, the first non-zero), got 3",
+        ),
+        (
+            "{model: transfer_function, numerator: [-1], denominator: [1, 5, 0]}",
+            "transfer_function",
+            "axes.x.drive.denominator: 1 + L(s) is unstable: pole(s) with real part >= 0: 0.1926",
+        ),
+        (
+            "{model: transfer_function, numerator: [1], denominator: [1, -1], feedback: none}",
+            "transfer_function",
+            "axes.x.drive.denominator: the closed loop is unstable: pole(s) with real part >= 0: 1",
+        ),
+        (
+            "{model: p_ff_friction, kp_m_min_mm: 2, velocity_integral_time_s: 0}",
+            "p_ff_friction",
+            "axes.x.drive.velocity_integral_time_s: must be > 0 and <= 10, got 0",
+        ),
+    ],
+)
+def test_new_drive_errors(tmp_path: Path, drive: str, fragment: str, expected: str) -> None:
+    text = MINIMAL.replace(
+        "    drive:\n      model: sopdt\n      omega0_rad_s: 95.6\n      zeta: 1.0\n", f"    drive: {drive}\n"
+    )
+    msg = error_of(tmp_path, text)
+    assert msg == f"{tmp_path / 'mill.yaml'}:{line_of(text, fragment)}: {expected}"
+
+
+def test_velocity_integral_time(tmp_path: Path) -> None:
+    text = MINIMAL.replace(
+        "      model: first_order_delay\n      time_constant_s: 0.02\n",
+        "      model: p_ff_friction\n      kp_m_min_mm: 1.6\n      velocity_integral_time_s: 0.02\n",
+    )
+    p = load_profile(write(tmp_path, text))
+    assert p.axes["y"].drive == PFfFrictionDrive(kp_m_min_mm=1.6, velocity_integral_time_s=0.02)
+    assert PFfFrictionDrive(kp_m_min_mm=1.0).velocity_integral_time_s is None
+
+
+def test_cross_coupling_needs_position_loops(tmp_path: Path) -> None:
+    text = MINIMAL + "controller: {type: cross_coupled, cross_coupling_gain: 20}\n"
+    msg = error_of(tmp_path, text)
+    assert msg.endswith(
+        "controller.coupled_axes: axis x has no position loop for the cross-coupled controller to act on"
+        " (axes.x.drive must be mass_damper_pid, p_ff_friction, sopdt with position_gain_1_s or transfer_function"
+        " with feedback unity)"
+    )
+    ok = MINIMAL.replace("      zeta: 1.0\n", "      zeta: 1.0\n      position_gain_1_s: 30\n").replace(
+        "      model: first_order_delay\n      time_constant_s: 0.02\n",
+        "      model: transfer_function\n      numerator: [2, 11.76]\n      denominator: [1, 12, 0]\n",
+    )
+    p = load_profile(write(tmp_path, ok + "controller: {type: cross_coupled, cross_coupling_gain: 20}\n", "ok.yaml"))
+    assert all(has_position_loop(p.axes[a].drive) for a in ("x", "y"))
+    assert not has_position_loop(FirstOrderDelayDrive(time_constant_s=0.01))
+    assert not has_position_loop(TransferFunctionDrive((1.0,), (1.0, 1.0), feedback="none"))
