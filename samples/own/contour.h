@@ -1,0 +1,28 @@
+0 BEGIN PGM CONTOUR MM
+1 ; ilcnc own sample: one contour with every contour element - APPR LT, L, RND,
+2 ; CHF, CR, CT, LP, CP, C and DEP LT - whose geometry is easy to check by hand;
+3 ; same licence as ilcnc (GPL-3.0-or-later)
+4 BLK FORM 0.1 Z X-70 Y-30 Z-10
+5 BLK FORM 0.2 X+50 Y+70 Z+0
+6 TOOL CALL 3 Z S8000
+7 L X-10 Y-10 Z+5 R0 FMAX M3
+8 L Z-2 F200
+9 APPR LT X+0 Y+0 LEN5 RL F300
+10 L X+40 F500
+11 RND R5
+12 L Y+30
+13 CHF 4
+14 L X+20
+15 CR X+10 Y+40 R+10 DR+
+16 CT X+0 Y+50
+17 CC X+0 Y+0
+18 LP PR+60 PA+90
+19 CP IPA+90 DR+
+20 L X-60 Y-20
+21 CC X-40 Y-20
+22 C X-20 Y-20 DR+
+23 L X-20 Y-10
+24 DEP LT LEN5 F1000
+25 L Z+5 R0 FMAX
+26 M30
+27 END PGM CONTOUR MM
