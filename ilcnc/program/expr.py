@@ -23,7 +23,7 @@ class ExprValueError(ExprError):
     """A well-formed expression whose value is undefined (unset parameter, division by zero)."""
 
 
-_NUMBER = re.compile(r"[+-]?\s*(?:\d+\.?\d*|\.\d+)")
+_NUMBER = re.compile(r"[+-]?[ \t]*(?:\d+(?:\.\d*)?|\.\d+)")
 _SPACE = re.compile(r"\s*")
 
 _BINARY_PRECEDENCE = {
@@ -95,10 +95,12 @@ def read_param_ref(text: str, pos: int, params: Parameters) -> tuple[str | int, 
     m = _NUMBER.match(text, pos)
     if m is None:
         raise ExprError("'#' without a parameter number or name")
-    return _as_index(float(m.group(0).replace(" ", ""))), m.end()
+    return _as_index(float(m.group(0).replace(" ", "").replace("\t", ""))), m.end()
 
 
 def _as_index(v: float) -> int:
+    if not math.isfinite(v) or abs(v) > 1e9:
+        raise ExprValueError(f"parameter number {v!r} out of range")
     if abs(v - round(v)) > 1e-4:
         raise ExprValueError(f"parameter number {v!r} is not an integer")
     return round(v)
@@ -138,7 +140,10 @@ def read_value(text: str, pos: int, params: Parameters) -> tuple[float, int]:
     m = _NUMBER.match(text, pos)
     if m is None:
         raise ExprError(f"bad number near '{text[pos:pos + 10]}'")
-    return float(m.group(0).replace(" ", "")), m.end()
+    v = float(m.group(0).replace(" ", "").replace("\t", ""))
+    if not math.isfinite(v):
+        raise ExprError(f"number {m.group(0)[:20]}... out of range")
+    return v, m.end()
 
 
 def _read_bracket(text: str, pos: int, params: Parameters) -> tuple[float, int]:

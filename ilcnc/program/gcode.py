@@ -61,19 +61,21 @@ _AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
 _CENTER_INDEX = {"I": 0, "J": 1, "K": 2}
 
 _LITERAL = re.compile(r"([+-]?)[ \t]*(\d*)(\.?)(\d*)")
-_SIMPLE_LINE = re.compile(r"[ \t]*(?:[A-DF-NP-Za-df-np-z][ \t]*[+-]?[ \t]*(?:\d+\.?\d*|\.\d+)[ \t]*)*")
+_SIMPLE_LINE = re.compile(r"[ \t]*(?:[A-DF-NP-Za-df-np-z][ \t]*[+-]?[ \t]*(?:\d+(?:\.\d*)?|\.\d+)[ \t]*)*")
 _SIMPLE_WORD = re.compile(r"([A-DF-NP-Za-df-np-z])[ \t]*([+-]?)[ \t]*(\d*)(\.?)(\d*)")
 # The common CAM block: [N..] [G0|G1] [X..] [Y..] [Z..] [F..] in this order, literal numbers.
-_NUM = r"([-+]?(?:\d+\.?\d*|\.\d+))"
+_NUM = r"([-+]?(?:\d+(?:\.\d*)?|\.\d+))"
 _FAST_LINE = re.compile(
     r"[ \t]*(?:[Nn]\d+[ \t]*)?(?:[Gg]0*([0-3])(?![\d.])[ \t]*)?"
     rf"(?:[Xx][ \t]*{_NUM}[ \t]*)?(?:[Yy][ \t]*{_NUM}[ \t]*)?(?:[Zz][ \t]*{_NUM}[ \t]*)?"
     rf"(?:[Ii][ \t]*{_NUM}[ \t]*)?(?:[Jj][ \t]*{_NUM}[ \t]*)?(?:[Kk][ \t]*{_NUM}[ \t]*)?"
     rf"(?:[Rr][ \t]*{_NUM}[ \t]*)?"
-    r"(?:[Ff][ \t]*(\d+\.?\d*|\.\d+)[ \t]*)?\r?"
+    r"(?:[Ff][ \t]*(\d+(?:\.\d*)?|\.\d+)[ \t]*)?\r?"
 )
 _ALL_LINES = re.compile(rf"^(?:{_FAST_LINE.pattern}$|(.+))", re.MULTILINE)
 _FAST_MOTION = {"0": 0, "1": 10, "2": 20, "3": 30}
+#: Largest magnitude of a number in a program (anything larger is a corrupt file, not a coordinate).
+_MAX_NUMBER = 1e12
 _O_WORD = re.compile(r"[Oo]\s*(<[^>]*>|\d+|#\d+|\[)")
 _O_KEYWORDS = (
     "sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
@@ -182,6 +184,8 @@ class _Lexer:
                     style |= STYLE_TRAILING_DOT
                 txt = m.group(0)[1:].replace(" ", "").replace("\t", "")
                 value = float(txt)
+                if not abs(value) <= _MAX_NUMBER:
+                    raise self.error(line, f"number {txt[:20]}{'...' if len(txt) > 20 else ''} out of range")
                 bit = 1 << (ord(letter) - 65)
                 if seen & bit and letter not in "GM":
                     raise self.error(line, f"word {letter} appears twice in one block")
@@ -288,6 +292,8 @@ class _Lexer:
                     elif dot and not fp:
                         style |= STYLE_TRAILING_DOT
                     value = float(f"{sign}{ip}{dot}{fp}" if ip else f"{sign}0{dot}{fp}")
+                    if not abs(value) <= _MAX_NUMBER:
+                        raise self.error(line, f"number {(ip + dot + fp)[:20]}... out of range")
                     word = Word(letter, value, base + vpos, base + m.end(), len(fp), style)
                     pos = m.end()
                 else:
@@ -320,7 +326,7 @@ class _Lexer:
             raise self.error(line, str(exc)) from None
         except RecursionError:
             raise self.error(line, "expression nested too deeply") from None
-        if not math.isfinite(value) or abs(value) > 1e12:
+        if not math.isfinite(value) or abs(value) > _MAX_NUMBER:
             raise self.error(line, f"value {value!r} out of range")
         return value, end
 
@@ -1166,8 +1172,11 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
     if len(rows) != n:  # cannot happen for text split on "\n"; guard the invariant all the same
         raise ProgramError(p, None, "internal error: line split mismatch")
     slow_col = [r[9] for r in rows]
-    slow = [i for i, x in enumerate(slow_col) if x]
     nums = _column_floats(rows, n)
+    # absurd numbers (overflowing to inf) go through the general lexer, which names them
+    huge = np.flatnonzero(np.any(np.abs(nums) > _MAX_NUMBER, axis=1)).tolist()
+    slow = sorted({i for i, x in enumerate(slow_col) if x} | set(huge))
+    nums[huge] = np.nan
     gcol = np.fromiter((_FAST_MOTION.get(r[0], -1) for r in rows), dtype=np.int64, count=n)
     del rows, slow_col
     slow.append(n)

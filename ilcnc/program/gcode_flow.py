@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 __all__ = ["MAX_EXECUTED_LINES", "has_control_flow", "run_control_flow"]
 
 #: Executed lines after which a program is taken not to terminate.
-MAX_EXECUTED_LINES = 5_000_000
+MAX_EXECUTED_LINES = 2_000_000
 
 _OLINE = re.compile(
     r"\s*(?:/\s*)?(?:[Nn]\s*\d+\s*)?[Oo]\s*(<[^>]*>|\d+)\s*"
@@ -149,6 +149,24 @@ def run_control_flow(
     pc = 0
     steps = 0
     percent = 0
+    seen_states: dict[int, set[tuple]] = {}
+
+    def jump_back(loop_line: int, target: int, extra: object = None) -> int:
+        """Jump to the head of a loop, refusing a loop that comes back to a state it was in before."""
+        states = seen_states.setdefault(loop_line, set())
+        if len(states) < 100_000:
+            st = interp.st
+            key = (
+                target, extra, tuple(sorted(params.numbered.items())), tuple(sorted(params.named.items())),
+                tuple(st.pos), st.motion, st.feed, st.plane, st.unit, st.absolute, st.cs, tuple(st.g92),
+                len(frames),
+            )
+            if key in states:
+                o = struct.olines[loop_line]
+                raise _Unsupported(loop_line + 1, f"o{o.label} {o.keyword} loops forever: it comes back to a state "
+                                                  "it was in before (no parameter or position changed)")
+            states.add(key)
+        return target
 
     def value(text: str, line: int) -> float:
         try:
@@ -256,7 +274,7 @@ def run_control_flow(
                 end = struct.partner[i]
                 if end < i:  # tail of a do-while
                     if value(o.rest.strip(), line) != 0.0:
-                        pc = end + 1
+                        pc = jump_back(end, end + 1)
                     else:
                         _pop_loop(loops, o.label)
                     continue
@@ -267,7 +285,7 @@ def run_control_flow(
                     _pop_loop(loops, o.label)
                     pc = end + 1
             elif kw == "endwhile":
-                pc = struct.partner[i]
+                pc = jump_back(struct.partner[i], struct.partner[i])
             elif kw == "do":
                 if not loops or loops[-1].start != i:
                     loops.append(_Loop(o.label, "do", i))
