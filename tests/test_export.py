@@ -175,3 +175,34 @@ def test_inspect_reports_planned_cycle_time_with_a_profile(tmp_path: Path) -> No
     assert r.returncode == 0
     rows = moves.read_text().splitlines()
     assert rows[0] == "k,line,x,y,z,f" and len(rows) == 2995
+
+
+@pytest.mark.parametrize("src", [SAMPLES / "heidenhain" / "apt_interface-glue_11.h", OWN / "square-incremental.h",
+                                 SAMPLES / "heidenhain" / "apt_top-light-cover_11.h"],
+                         ids=lambda p: p.name)
+def test_corrections_in_klartext(src: Path, tmp_path: Path) -> None:
+    rng = np.random.default_rng(4)
+    n = read_program(src).n_commands
+    pick = rng.choice(n, size=min(n, 150), replace=False)
+    _check_corrected(src, tmp_path, np.sort(pick), rng)
+
+
+@pytest.mark.parametrize("src", [SAMPLES / "contour" / "compass.ngc", SAMPLES / "contour" / "Gates_combined_R12.nc",
+                                 SAMPLES / "contour" / "vcarve.ngc", OWN / "circle.ngc"], ids=lambda p: p.name)
+def test_gcode_to_klartext_and_back_keeps_every_g01(src: Path, tmp_path: Path) -> None:
+    prog = read_program(src)
+    h = tmp_path / "part.h"
+    export_program(src, h, min_decimals=4)
+    klartext = read_program(h)
+    klartext.require_complete()
+    back = tmp_path / "part.ngc"
+    export_program(h, back, min_decimals=4)
+    again = read_program(back)
+    tol = 0.5e-4 * (25.4 if prog.units == "inch" else 1.0) + 1e-9
+    for other in (klartext, again):
+        assert other.n_commands == prog.n_commands
+        a = prog.command_end_mm - prog.moves.offset_mm[prog.command_moves]
+        b = other.command_end_mm - other.moves.offset_mm[other.command_moves]
+        assert np.max(np.abs(a - b)) <= tol
+    text = h.read_text()
+    assert text.upper().startswith("0 BEGIN PGM PART") and text.upper().rstrip().endswith("END PGM PART " + prog.units.upper())
