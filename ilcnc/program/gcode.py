@@ -1269,6 +1269,7 @@ def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: st
             plane = int(moves.plane[i])
             words.append(f"G{plane}")
         words.append(("G0", "G1", "G2", "G3")[kind])
+        n_motion_words = len(words)
         for a in range(3):
             s = f"{ends[i, a]:.{d}f}"
             if s.startswith("-") and float(s) == 0.0:
@@ -1276,6 +1277,10 @@ def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: st
             if s != last[a] or (kind >= MOVE_ARC_CW and a in _PLANE_AXES[plane][:2]):
                 words.append(f"{AXES_LETTERS[a]}{s}")
                 last[a] = s
+        if len(words) == n_motion_words:
+            # a move that changes no written coordinate is still a block (maybe a command k):
+            # write its position so the block is kept
+            words.extend(f"{AXES_LETTERS[a]}{last[a]}" for a in range(3) if last[a] is not None)
         if kind >= MOVE_ARC_CW:
             for a in _PLANE_AXES[plane][:2]:
                 words.append(f"{'IJK'[a]}{centers[i, a] - starts[i, a]:.{d}f}")
