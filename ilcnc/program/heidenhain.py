@@ -1988,35 +1988,26 @@ class _Interp:
         """Unit tangent of a move at its end, in the working plane."""
         if r is None:
             raise _Stop(line, f"{what} needs a preceding contour element")
-        i0, i1, _i2 = _PLANE_AXES[self.plane]
-        if r[R_KIND] >= MOVE_ARC_CW:
-            if r[R_PLANE] != self.plane:
-                raise _Stop(line, f"{what} after an arc outside the working plane is not modelled")
-            ra = r[R_END][i0] - r[R_CEN][i0]
-            rb = r[R_END][i1] - r[R_CEN][i1]
-            ta, tb = (-rb, ra) if r[R_KIND] == MOVE_ARC_CCW else (rb, -ra)
-        else:
-            ta = r[R_END][i0] - r[R_START][i0]
-            tb = r[R_END][i1] - r[R_START][i1]
-        n = math.hypot(ta, tb)
-        if n < 1e-9:
-            raise _Stop(line, f"{what}: the preceding element has no direction in the working plane")
-        return ta / n, tb / n
+        return self._tangent(r, R_END, line, what, "after", "preceding")
 
     def start_tangent(self, r: list, line: int, what: str) -> tuple[float, float]:
+        """Unit tangent of a move at its start, in the working plane."""
+        return self._tangent(r, R_START, line, what, "before", "following")
+
+    def _tangent(self, r: list, at: int, line: int, what: str, rel: str, which: str) -> tuple[float, float]:
         i0, i1, _i2 = _PLANE_AXES[self.plane]
         if r[R_KIND] >= MOVE_ARC_CW:
             if r[R_PLANE] != self.plane:
-                raise _Stop(line, f"{what} before an arc outside the working plane is not modelled")
-            ra = r[R_START][i0] - r[R_CEN][i0]
-            rb = r[R_START][i1] - r[R_CEN][i1]
+                raise _Stop(line, f"{what} {rel} an arc outside the working plane is not modelled")
+            ra = r[at][i0] - r[R_CEN][i0]
+            rb = r[at][i1] - r[R_CEN][i1]
             ta, tb = (-rb, ra) if r[R_KIND] == MOVE_ARC_CCW else (rb, -ra)
         else:
             ta = r[R_END][i0] - r[R_START][i0]
             tb = r[R_END][i1] - r[R_START][i1]
         n = math.hypot(ta, tb)
         if n < 1e-9:
-            raise _Stop(line, f"{what}: the following element has no direction in the working plane")
+            raise _Stop(line, f"{what}: the {which} element has no direction in the working plane")
         return ta / n, tb / n
 
     def h_ct(self, blk: _Block, i: int) -> int | None:
