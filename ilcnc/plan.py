@@ -332,8 +332,7 @@ def _smooth_increments(d: NDArray[np.float64], n: int) -> NDArray[np.float64]:
 def _sample_ideal(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], pieces: _Pieces, period_s: float
                   ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Positions of the ideal interpolator at every servo tick of a group, and the move index there."""
-    plen, pspd, owner, offs, mlen = pieces
-    dur = plen / pspd
+    plen, pspd, owner, offs, dur, mlen = pieces
     t_end = np.cumsum(dur)
     total = float(t_end[-1])
     n = max(1, math.ceil(total / period_s - 1e-12))
@@ -487,7 +486,7 @@ def _plan_group(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], length
 
 
 _Pieces = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64],
-                NDArray[np.float64]]
+                NDArray[np.float64], NDArray[np.float64]]
 
 
 def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float) -> _Pieces:
@@ -496,29 +495,38 @@ def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[n
     A zone long enough for the filters to finish the speed change before the
     corner (``v_corner * span``) runs at the corner speed; the rest of the move
     at its own speed. Moves too short for zones run at the slowest speed that
-    touches them.
+    touches them. A junction whose speed is 0 (an exact stop, tolerance 0) is a
+    dwell of one filter span at the vertex: the filters then stop the axes
+    there and the path passes through the vertex exactly.
 
     Returns
     -------
-    (length, speed, owner, offset, move_length)
+    (length, speed, owner, offset, duration, move_length)
         Per piece: length (mm), speed (mm/s), index of its move within the
-        group, arc length where it starts within its move; and per move its length.
+        group, arc length where it starts within its move, duration (s); and
+        per move its length.
     """
     n = move_len.shape[0]
-    v_in = np.minimum(v, np.concatenate(([np.inf], vj)))
-    v_out = np.minimum(v, np.concatenate((vj, [np.inf])))
+    stop_after = np.concatenate((vj <= 0.0, [False]))
+    vj_slow = np.where(vj <= 0.0, np.inf, vj)
+    v_in = np.minimum(v, np.concatenate(([np.inf], vj_slow)))
+    v_out = np.minimum(v, np.concatenate((vj_slow, [np.inf])))
     zin = np.where(v_in < v, v_in * span_s, 0.0)
     zout = np.where(v_out < v, v_out * span_s, 0.0)
     slow = (v_in < v) | (v_out < v)
     short = (zin + zout >= move_len) | ((span_s == 0.0) & slow)
-    lens = np.stack([zin, move_len - zin - zout, zout], axis=1)
-    spds = np.stack([v_in, v, v_out], axis=1)
-    lens[short] = np.column_stack([move_len[short], np.zeros((int(short.sum()), 2))])
+    lens = np.stack([zin, move_len - zin - zout, zout, np.zeros(n)], axis=1)
+    spds = np.stack([v_in, v, v_out, np.zeros(n)], axis=1)
+    lens[short, 0] = move_len[short]
+    lens[short, 1:3] = 0.0
     spds[short, 0] = np.minimum(np.minimum(v_in[short], v_out[short]), v[short])
-    offs = np.concatenate([np.zeros((n, 1)), np.cumsum(lens, axis=1)[:, :2]], axis=1)
-    owner = np.repeat(np.arange(n), 3).reshape(n, 3)
-    keep = lens > 0
-    return lens[keep], spds[keep], owner[keep], offs[keep], move_len
+    with np.errstate(divide="ignore", invalid="ignore"):
+        durs = np.where(lens > 0, lens / spds, 0.0)
+    durs[:, 3] = np.where(stop_after, span_s, 0.0)
+    offs = np.concatenate([np.zeros((n, 1)), np.cumsum(lens, axis=1)[:, :3]], axis=1)
+    owner = np.repeat(np.arange(n), 4).reshape(n, 4)
+    keep = durs > 0
+    return lens[keep], spds[keep], owner[keep], offs[keep], durs[keep], move_len
 
 
 def _violations(pos: NDArray[np.float64], limits: PlanLimits, period_s: float) -> NDArray[np.int64]:
