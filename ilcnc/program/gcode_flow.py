@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 __all__ = ["MAX_EXECUTED_LINES", "has_control_flow", "run_control_flow"]
 
 #: Executed lines after which a program is taken not to terminate.
-MAX_EXECUTED_LINES = 2_000_000
+MAX_EXECUTED_LINES = 200_000
 
 _OLINE = re.compile(
     r"\s*(?:/\s*)?(?:[Nn]\s*\d+\s*)?[Oo]\s*(<[^>]*>|\d+)\s*"
@@ -294,6 +294,10 @@ def run_control_flow(
                     loop = loops[-1]
                 else:
                     cnt = value(o.rest.strip(), line)
+                    body = struct.partner[i] - i
+                    if not cnt * body < MAX_EXECUTED_LINES:
+                        raise _Unsupported(line, f"o{o.label} repeat [{cnt:g}] would run more than "
+                                                 f"{MAX_EXECUTED_LINES} lines: not modelled")
                     loop = _Loop(o.label, "repeat", i, round(cnt))
                     loops.append(loop)
                 if loop.count <= 0:

@@ -104,11 +104,11 @@ from ilcnc.program.model import (
 __all__ = ["read_heidenhain", "write_klartext"]
 
 #: Blocks executed before the interpreter gives up on a loop.
-MAX_BLOCKS = 10_000_000
+MAX_BLOCKS = 1_000_000
 #: Blocks executed without any motion before the interpreter gives up on a loop.
-MAX_IDLE_BLOCKS = 1_000_000
+MAX_IDLE_BLOCKS = 200_000
 #: Moves produced before the interpreter gives up.
-MAX_MOVES = 5_000_000
+MAX_MOVES = 200_000
 #: Largest magnitude of a number (the TNC itself takes at most 99999.9999 for a coordinate).
 MAX_NUMBER = 1e9
 #: Most decimals of a number.
