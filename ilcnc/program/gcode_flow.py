@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 __all__ = ["MAX_EXECUTED_LINES", "has_control_flow", "run_control_flow"]
 
 #: Executed lines after which a program is taken not to terminate.
-MAX_EXECUTED_LINES = 200_000
+MAX_EXECUTED_LINES = 80_000
 
 _OLINE = re.compile(
     r"\s*(?:/\s*)?(?:[Nn]\s*\d+\s*)?[Oo]\s*(<[^>]*>|\d+)\s*"
@@ -175,6 +175,8 @@ def run_control_flow(
             raise _Unsupported(line, str(exc)) from None
         except ExprError as exc:
             raise ProgramError(path, line, str(exc)) from None
+        except RecursionError:
+            raise ProgramError(path, line, "expression nested too deeply") from None
         if text[end:].strip():
             raise ProgramError(path, line, f"unexpected text after the value: {text[end:].strip()!r}")
         return v
@@ -193,6 +195,8 @@ def run_control_flow(
                 raise _Unsupported(line, str(exc)) from None
             except ExprError as exc:
                 raise ProgramError(path, line, str(exc)) from None
+            except RecursionError:
+                raise ProgramError(path, line, "expression nested too deeply") from None
             out.append(v)
         return out
 

@@ -104,11 +104,11 @@ from ilcnc.program.model import (
 __all__ = ["read_heidenhain", "write_klartext"]
 
 #: Blocks executed before the interpreter gives up on a loop.
-MAX_BLOCKS = 1_000_000
+MAX_BLOCKS = 600_000
 #: Blocks executed without any motion before the interpreter gives up on a loop.
-MAX_IDLE_BLOCKS = 200_000
+MAX_IDLE_BLOCKS = 100_000
 #: Moves produced before the interpreter gives up.
-MAX_MOVES = 200_000
+MAX_MOVES = 100_000
 #: Largest magnitude of a number (the TNC itself takes at most 99999.9999 for a coordinate).
 MAX_NUMBER = 1e9
 #: Most decimals of a number.
@@ -519,7 +519,10 @@ _FN_TARGET = re.compile(r"(Q[LR]?\d+)\s*=\s*")
 _FN_OPS = {1: "+", 2: "-", 3: "*", 4: "DIV", 8: "LEN", 13: "ANG"}
 _FN_UNARY = {5: "SQRT", 6: "SIN", 7: "COS"}
 _FN_CMP = {9: "EQU", 10: "NE", 11: "GT", 12: "LT"}
-_FN_JUMP_RE = re.compile(r"IF\s*(.*?)\s*(EQU|NE|GT|LT)\s*(.*?)\s*GOTO\s+LBL\s*" + _LABEL + r"\s*(?:;.*)?\Z", re.S)
+# An FN 9..12 jump is parsed in two linear steps (one pattern with two lazy groups before GOTO
+# backtracks cubically on a long line): the GOTO tail, then the comparison before it.
+_FN_GOTO_RE = re.compile(r"[ \t]*GOTO\s+LBL\s*" + _LABEL + r"\s*(?:;.*)?\Z", re.S)
+_FN_COND_RE = re.compile(r"IF\s*(.*?)\s*(EQU|NE|GT|LT)\s*(.*)\Z", re.S)
 _SYSREAD_RE = re.compile(r"SYSREAD\s+(Q[LRS]?\d+)\s*=\s*(.*?)\s*(?:;.*)?\Z", re.S)
 _ERROR_RE = re.compile(r"ERROR\s*=\s*(\S+)")
 _Q_RE = re.compile(r"(Q[LR]?\d+)\s*=")
@@ -1019,14 +1022,18 @@ class _Lexer:
         return target, f
 
     def fn_jump(self, num: int, s: str, j: int) -> tuple[str, Callable, Callable, Any]:
-        m = _FN_JUMP_RE.match(s, j)
+        bad = f"malformed FN {num} (expected 'FN {num}: IF a {_FN_CMP[num]} b GOTO LBL n')"
+        g = _FN_GOTO_RE.search(s, j)
+        if g is None:
+            raise _Syntax(bad)
+        m = _FN_COND_RE.match(s[:g.start()], j)
         if m is None:
-            raise _Syntax(f"malformed FN {num} (expected 'FN {num}: IF a {_FN_CMP[num]} b GOTO LBL n')")
+            raise _Syntax(bad)
         if m.group(2) != _FN_CMP[num]:
             raise _Syntax(f"FN {num} compares with {_FN_CMP[num]}, not {m.group(2)}")
         a = self.operand_text(m.group(1), s, m.start(1))
-        b = self.operand_text(m.group(3), s, m.start(3))
-        key = _label_key(m.group(4))
+        b = self.operand_text(m.group(3).rstrip(), s, m.start(3))
+        key = _label_key(g.group(1))
         self.note_target(key)
         return m.group(2), a, b, key
 

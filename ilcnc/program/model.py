@@ -250,6 +250,8 @@ class MoveTableBuilder:
         m = len(c["kind"])
 
         def arr3(name: str, dtype: type) -> NDArray:
+            if dtype is np.int8:  # decimals: a number may be written with absurdly many
+                return np.minimum(np.array(c[name], dtype=np.int64), 127).astype(np.int8).reshape(m, 3)
             a = np.array(c[name], dtype=dtype)
             return a.reshape(m, 3)
 
