@@ -1069,15 +1069,24 @@ def _general(lexer: _Lexer, interp: _Interpreter, lines: list[str], line_start: 
 
 
 def _column_floats(rows: list[tuple[str, ...]], n: int) -> np.ndarray:
-    """The X Y Z I J K R F captures of every line as an (n, 8) float array (NaN where absent)."""
-    # one C-level parse of all numbers: measured ~5x faster than float() per string
-    joined = " ".join([x or "nan" for r in rows for x in r[1:9]])
+    """The G X Y Z I J K R F captures of every line as an (n, 9) float array (NaN where absent).
+
+    Each column is joined into one string and parsed by numpy's C parser in
+    one call (measured ~3x faster than flattening all cells, and ~10x faster
+    than ``float()`` per cell); empty cells become ``nan`` by string replacement.
+    """
+    out = np.empty((n, 9))
+    cols = list(zip(*rows, strict=True))[:9] if rows else [()] * 9
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        flat = np.fromstring(joined, dtype=np.float64, sep=" ")
-    if flat.shape[0] != 8 * n:
-        flat = np.array([x or "nan" for r in rows for x in r[1:9]], dtype=np.float64)
-    return flat.reshape(n, 8)
+        for c, col in enumerate(cols):
+            text = "|" + "|".join(col) + "|"
+            text = text.replace("||", "|nan|").replace("||", "|nan|")
+            vals = np.fromstring(text[1:-1], dtype=np.float64, sep="|")
+            if vals.shape[0] != n:  # cannot happen for regex-captured numbers; keep a safe path
+                vals = np.array([x or "nan" for x in col], dtype=np.float64)
+            out[:, c] = vals
+    return out
 
 
 def resolve_fast_spans(program: Program, indices: np.ndarray) -> None:
@@ -1172,12 +1181,13 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
     if len(rows) != n:  # cannot happen for text split on "\n"; guard the invariant all the same
         raise ProgramError(p, None, "internal error: line split mismatch")
     slow_col = [r[9] for r in rows]
-    nums = _column_floats(rows, n)
+    table = _column_floats(rows, n)
+    nums = table[:, 1:9]
     # absurd numbers (overflowing to inf) go through the general lexer, which names them
     huge = np.flatnonzero(np.any(np.abs(nums) > _MAX_NUMBER, axis=1)).tolist()
-    slow = sorted({i for i, x in enumerate(slow_col) if x} | set(huge))
+    slow = sorted(set(np.flatnonzero(np.array(slow_col, dtype=bool)).tolist()) | set(huge))
     nums[huge] = np.nan
-    gcol = np.fromiter((_FAST_MOTION.get(r[0], -1) for r in rows), dtype=np.int64, count=n)
+    gcol = np.where(np.isnan(table[:, 0]), -1, np.nan_to_num(table[:, 0]) * 10).astype(np.int64)
     del rows, slow_col
     slow.append(n)
     i = 0

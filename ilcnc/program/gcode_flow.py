@@ -35,8 +35,9 @@ _OLINE = re.compile(
     r"(sub|endsub|call|return|if|elseif|else|endif|while|endwhile|do|repeat|endrepeat|break|continue)\b(.*)",
     re.IGNORECASE,
 )
-_HAS_FLOW = re.compile(r"^\s*(?:[Nn]\s*\d+\s*)?[Oo]\s*(?:<[^>]*>|\d+)\s*(?:sub|call|if|while|do|repeat)\b",
-                       re.IGNORECASE | re.MULTILINE)
+# Found anywhere (a comment may hold one too: then the line-by-line path simply runs, still correct);
+# no anchor, so the scan jumps from one O to the next instead of testing every line start.
+_HAS_FLOW = re.compile(r"[Oo][ \t]*(?:<[^>]*>|\d+)[ \t]*(?i:sub|call|if|while|do|repeat)\b")
 
 
 def has_control_flow(text: str) -> bool:
