@@ -126,10 +126,7 @@ def simulate(
         if as_json:
             result = sim_mod.simulate_program(prog, prof, against=orig)
         else:
-            with console.status("simulating ...") as status:
-                result = sim_mod.simulate_program(
-                    prog, prof, against=orig, progress=lambda stage: status.update(f"simulating: {stage} ...")
-                )
+            result = _simulate_with_progress(sim_mod, prog, prof, orig, console)
         if out is not None:
             protect = (program, profile) + ((against,) if against is not None else ())
             write_axis_log(out, result.axis_log(), protect=protect)
@@ -139,6 +136,23 @@ def simulate(
         typer.echo(json.dumps(result.to_json(prog)))
         return
     _print_simulation(result, prog, console, out)
+
+
+def _simulate_with_progress(sim_mod, prog, prof, orig, console):
+    """Run the virtual CNC with a progress bar over its stages (shown on a terminal only)."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    stages = ("plan", "drives", "contour")
+    with Progress(TextColumn("simulating: {task.description:<8}"), BarColumn(), TimeElapsedColumn(),
+                  console=console, transient=True) as bar:
+        task = bar.add_task("plan", total=len(stages))
+
+        def advance(stage: str) -> None:
+            bar.update(task, completed=stages.index(stage), description=stage)
+
+        result = sim_mod.simulate_program(prog, prof, against=orig, progress=advance)
+        bar.update(task, completed=len(stages))
+    return result
 
 
 def _print_simulation(result, prog, console, out: Path | None) -> None:
