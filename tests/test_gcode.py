@@ -192,3 +192,39 @@ def test_own_samples_read() -> None:
         prog = read_program(p)
         prog.require_complete()
         assert prog.n_commands > 0
+
+
+@pytest.mark.parametrize("path", [*GCODE_SAMPLES, *sorted(OWN.glob("*.n*"))], ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_compiled_scanner_classifies_exactly_like_the_regular_expression(path: Path) -> None:
+    from ilcnc.program import gcode, scan
+    from ilcnc.program.model import decode_source
+
+    if not scan.AVAILABLE:
+        pytest.fail("numba (a runtime dependency) is not installed")
+    data = path.read_bytes()
+    text = decode_source(data)
+    starts = np.concatenate(([0], np.flatnonzero(np.frombuffer(data, dtype=np.uint8) == 10) + 1))
+    a, slow_a = gcode._classify(text, data, starts.shape[0], starts, path, force="regex")
+    b, slow_b = gcode._classify(text, data, starts.shape[0], starts, path, force="scanner")
+    assert np.array_equal(slow_a, slow_b)
+    assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_compiled_scanner_on_edge_cases() -> None:
+    from ilcnc.program import gcode
+
+    text = ("G1 X1.5 F100\nN10 G00 x-.5 y+2. Z3\nG10 X1\nG1.0 X1\nX1 X2\nG2 X1 Y2 I0.5 J-0.25\nF 200\n"
+            "X 1 Y2\nX- 1\n\nX12345678901234567\nX0.000000000000000000000001\n  \t\r\nG01F-1\n")
+    data = text.encode()
+    starts = np.concatenate(([0], np.flatnonzero(np.frombuffer(data, dtype=np.uint8) == 10) + 1))
+    a, slow_a = gcode._classify(text, data, starts.shape[0], starts, Path("t.ngc"), force="regex")
+    b, slow_b = gcode._classify(text, data, starts.shape[0], starts, Path("t.ngc"), force="scanner")
+    assert slow_a.tolist() == [False, False, True, True, True, False, False, False, True, False, False, False, False,
+                               True, False]
+    # the scanner leaves numbers with more than 15 significant digits or 22 decimals to the general lexer
+    agree = ~(slow_a ^ slow_b)
+    assert not agree[10] and slow_b[10] and not agree[11] and slow_b[11]
+    keep = np.ones(len(slow_a), bool)
+    keep[[10, 11]] = False
+    assert np.array_equal(slow_a[keep], slow_b[keep])
+    assert np.array_equal(a[keep & ~slow_b], b[keep & ~slow_b], equal_nan=True)

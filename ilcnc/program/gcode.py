@@ -1051,7 +1051,26 @@ def _arc_length(start: list[float], end: list[float], center: list[float], a1: i
     return math.hypot(r * sweep, end[lin] - start[lin])
 
 
-def _general(lexer: _Lexer, interp: _Interpreter, lines: list[str], line_start: np.ndarray, i: int, running: bool,
+class _Lines:
+    """Lines of a text by index, sliced on demand (without the newline)."""
+
+    __slots__ = ("_n", "_start", "_text")
+
+    def __init__(self, text: str, line_start: np.ndarray) -> None:
+        self._text = text
+        self._start = line_start
+        self._n = int(line_start.shape[0])
+
+    def __getitem__(self, i: int) -> str:
+        start = int(self._start[i])
+        end = int(self._start[i + 1]) - 1 if i + 1 < self._n else len(self._text)
+        return self._text[start:end]
+
+    def __len__(self) -> int:
+        return self._n
+
+
+def _general(lexer: _Lexer, interp: _Interpreter, lines: _Lines, line_start: np.ndarray, i: int, running: bool,
              unsupported: tuple[int, str] | None) -> tuple[bool, tuple[int, str] | None]:
     """Run line ``i`` through the general lexer and interpreter; returns (running, unsupported)."""
     raw = lines[i]
@@ -1066,6 +1085,28 @@ def _general(lexer: _Lexer, interp: _Interpreter, lines: list[str], line_start: 
         lexer.lenient = True
         return False, unsupported
     return running, unsupported
+
+
+#: Programs with more lines than this are classified by the compiled scanner (its import and first
+#: compilation cost more than the regular expression saves on small files).
+SCANNER_MIN_LINES = 20_000
+
+
+def _classify(text: str, data: bytes, n: int, line_start: np.ndarray, path: Path,
+              *, force: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Plain-block numbers (n, 9: G X Y Z I J K R F) and the mask of other ("slow") lines."""
+    use_scanner = force == "scanner" or (force is None and n >= SCANNER_MIN_LINES)
+    if use_scanner:
+        from ilcnc.program import scan
+
+        if scan.AVAILABLE:
+            return scan.scan_plain_blocks(data, line_start)
+    # one C-level regular-expression pass: plain CAM blocks (numbers captured) or other
+    rows = _ALL_LINES.findall(text)
+    if len(rows) != n:  # cannot happen for text split on "\n"; guard the invariant all the same
+        raise ProgramError(path, None, "internal error: line split mismatch")
+    slow = np.array([r[9] for r in rows], dtype=bool)
+    return _column_floats(rows, n), slow
 
 
 def _column_floats(rows: list[tuple[str, ...]], n: int) -> np.ndarray:
@@ -1169,26 +1210,22 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
     unsupported: tuple[int, str] | None = None
     percent_count = 0
     running = True
-    lines = text.split("\n")
-    n = len(lines)
-    lens = np.fromiter(map(len, lines), dtype=np.int64, count=n) + 1
-    line_start = np.concatenate(([0], np.cumsum(lens)[:-1]))
-    if has_control_flow(text):
-        unsupported = run_control_flow(lexer, interp, lines, line_start)
+    # line offsets from the bytes (one numpy pass); the text of a line is sliced only when needed
+    line_start = np.concatenate(([0], np.flatnonzero(np.frombuffer(data, dtype=np.uint8) == 10) + 1))
+    n = int(line_start.shape[0])
+    lines = _Lines(text, line_start)
+    table, slow_mask = _classify(text, data, n, line_start, p)
+    # O-words only stand in lines that are not plain blocks: look there only
+    if has_control_flow("\n".join([lines[i] for i in np.flatnonzero(slow_mask)])):
+        unsupported = run_control_flow(lexer, interp, text.split("\n"), line_start)
         return _finish(p, text, interp, unsupported, default_units, dialect)
-    # One C-level pass classifies every line: plain CAM blocks (numbers captured) or other ("slow").
-    rows = _ALL_LINES.findall(text)
-    if len(rows) != n:  # cannot happen for text split on "\n"; guard the invariant all the same
-        raise ProgramError(p, None, "internal error: line split mismatch")
-    slow_col = [r[9] for r in rows]
-    table = _column_floats(rows, n)
     nums = table[:, 1:9]
     # absurd numbers (overflowing to inf) go through the general lexer, which names them
-    huge = np.flatnonzero(np.any(np.abs(nums) > _MAX_NUMBER, axis=1)).tolist()
-    slow = sorted(set(np.flatnonzero(np.array(slow_col, dtype=bool)).tolist()) | set(huge))
+    huge = np.any(np.abs(nums) > _MAX_NUMBER, axis=1)
+    slow_mask |= huge
     nums[huge] = np.nan
+    slow = np.flatnonzero(slow_mask).tolist()
     gcol = np.where(np.isnan(table[:, 0]), -1, np.nan_to_num(table[:, 0]) * 10).astype(np.int64)
-    del rows, slow_col
     slow.append(n)
     i = 0
     for nxt in slow:
