@@ -92,7 +92,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ilcnc.program.model import MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, PLANE_XY, MoveTable
+from ilcnc.program.model import MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, PLANE_AXES, PLANE_XY, MoveTable
 
 __all__ = [
     "DEFAULT_CHUNK",
@@ -116,7 +116,6 @@ DEFAULT_CHUNK = 1 << 16
 DEFAULT_MAX_WALK = 32
 
 # (first, second, linear) axis of each plane, as RS-274 orders them
-_PLANE_AXES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
 # Coordinate of an inactive segment's start: far away, yet its squared distance (~3e300) stays finite
 _FAR = 1e150
 _FAR_D2 = 1e299
@@ -253,7 +252,7 @@ class PathGeometry:
         self._il2 = np.ascontiguousarray(il2)
         # left normal (in the move's plane) of straight segments, unit, 0 if none
         left = np.zeros((m, 3))
-        for pl, (a1, a2, _n) in _PLANE_AXES.items():
+        for pl, (a1, a2, _n) in PLANE_AXES.items():
             sel = self.plane == pl
             if not sel.any():
                 continue
@@ -271,7 +270,7 @@ class PathGeometry:
         line_planes = np.unique(self.plane[~is_arc])
         self._line_plane: tuple[int, int] | None = None
         if line_planes.size == 1:
-            a1, a2, _n = _PLANE_AXES[int(line_planes[0])]
+            a1, a2, _n = PLANE_AXES[int(line_planes[0])]
             self._line_plane = (a1, a2)
             nn = np.hypot(d[:, a1], d[:, a2])
             self._inv_inplane = np.where(nn > 0, 1.0 / np.where(nn > 0, nn, 1.0), 0.0)
@@ -286,7 +285,7 @@ class PathGeometry:
             if bad.any():
                 raise ValueError(f"arc segment {int(ai[bad][0])} has plane {int(plane[bad][0])} (expected 17, 18 or 19)")
             c = self.center_mm[ai]
-            axes = np.array([_PLANE_AXES[int(p)] for p in (17, 18, 19)])
+            axes = np.array([PLANE_AXES[int(p)] for p in (17, 18, 19)])
             ax3 = axes[plane - 17]  # (A, 3): a1, a2, lin
             rows = np.arange(ai.size)
             sa, ea = s[ai], e[ai]
@@ -332,7 +331,7 @@ class PathGeometry:
                 self._a_curved,
             ], dtype=np.float64)
             planes = np.unique(plane)
-            self._arc_plane: tuple[int, int, int] | None = _PLANE_AXES[int(planes[0])] if planes.size == 1 else None
+            self._arc_plane: tuple[int, int, int] | None = PLANE_AXES[int(planes[0])] if planes.size == 1 else None
             # length: helix exactly, spiral by its mean radius
             length[ai] = np.hypot(0.5 * (r0 + r1) * sw, self._a_dlin)
             # for straight-line data of arcs keep the chord (harmless, always overridden)

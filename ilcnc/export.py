@@ -11,7 +11,6 @@ from ilcnc.corrections import read_corrections
 from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes, write_atomic
 from ilcnc.program import GCODE_SUFFIXES, HEIDENHAIN_SUFFIXES, read_program
-from ilcnc.program.model import MM_PER_INCH
 from ilcnc.program.rewrite import apply_corrections
 
 __all__ = ["ExportResult", "export_program", "output_family"]
@@ -120,5 +119,3 @@ def _corrected_moves(program, corr):
     mv.start_mm = start
     return mv
 
-
-_ = MM_PER_INCH

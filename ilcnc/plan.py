@@ -50,11 +50,10 @@ from numpy.typing import NDArray
 
 from ilcnc.profile import MachineProfile
 from ilcnc.program.geometry import arc_sweep_rad, move_lengths_mm
-from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, MoveTable
+from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
 
 __all__ = ["PlanLimits", "Reference", "check_limits", "plan_moves", "plan_program"]
 
-_PLANE_AXES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
 _EPS = 1e-9
 _HOLD_SAMPLES = 3
 #: In-position wait between rapids and feed moves, s (CNCs check in-position after G0).
@@ -250,7 +249,7 @@ def _directions(moves: MoveTable) -> tuple[NDArray[np.float64], NDArray[np.float
     is_arc = moves.kind >= MOVE_ARC_CW
     if is_arc.any():
         sweep = arc_sweep_rad(moves)
-        for plane, (a1, a2, lin) in _PLANE_AXES.items():
+        for plane, (a1, a2, lin) in PLANE_AXES.items():
             sel = np.flatnonzero(is_arc & (moves.plane == plane))
             if sel.size == 0:
                 continue
@@ -286,7 +285,7 @@ def _nominal_speed(moves: MoveTable, length: NDArray[np.float64], limits: PlanLi
     is_arc = moves.kind >= MOVE_ARC_CW
     # an arc sweeps through every direction of its plane: cap by the slowest axis of the plane
     if is_arc.any():
-        for plane, (a1, a2, _lin) in _PLANE_AXES.items():
+        for plane, (a1, a2, _lin) in PLANE_AXES.items():
             sel = is_arc & (moves.plane == plane)
             cap[sel] = np.minimum(cap[sel], min(limits.velocity_mm_s[a1], limits.velocity_mm_s[a2]))
     feed = np.where(rapid, np.inf, moves.feed_mm_min / 60.0)
@@ -354,7 +353,7 @@ def _position_on_moves(moves: MoveTable, mv: NDArray[np.int64], frac: NDArray[np
     if is_arc.any():
         if sweep_all is None:
             sweep_all = arc_sweep_rad(moves)
-        for plane, (a1, a2, _lin) in _PLANE_AXES.items():
+        for plane, (a1, a2, _lin) in PLANE_AXES.items():
             sel = np.flatnonzero(is_arc & (moves.plane[mv] == plane))
             if sel.size == 0:
                 continue
@@ -397,7 +396,7 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
     if is_arc.any():
         mi = idx[is_arc]
         r = np.empty(mi.shape[0])
-        for plane, (a1, a2, _lin) in _PLANE_AXES.items():
+        for plane, (a1, a2, _lin) in PLANE_AXES.items():
             sel = moves.plane[mi] == plane
             if sel.any():
                 s, c = moves.start_mm[mi[sel]], moves.center_mm[mi[sel]]

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import contextlib
 import faulthandler
-import importlib.util
 import re
 import signal
 import traceback
@@ -438,7 +437,6 @@ FUZZ_SETTINGS = settings(
 )
 
 
-HAVE_HEIDENHAIN = importlib.util.find_spec("ilcnc.program.heidenhain") is not None
 
 
 @pytest.mark.slow
@@ -450,7 +448,6 @@ def test_gcode_reader_survives_mutated_lines(case: Case) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not HAVE_HEIDENHAIN, reason="ilcnc.program.heidenhain (the Klartext reader) is not there yet")
 @FUZZ_SETTINGS
 @given(case=cases(HEIDENHAIN_SAMPLES, HEIDENHAIN_TOKENS))
 def test_heidenhain_reader_survives_mutated_lines(case: Case) -> None:
@@ -501,8 +498,6 @@ ENDLESS_LOOPS = {
 def test_an_endless_loop_is_refused_in_time(name: str) -> None:
     """A program that never ends (or would run for hours) is read or refused within the budget, not after minutes."""
     file, data = ENDLESS_LOOPS[name]
-    if file.endswith(".h") and not HAVE_HEIDENHAIN:
-        pytest.skip("ilcnc.program.heidenhain (the Klartext reader) is not there yet")
     with hard_time_limit(LOOP_BUDGET_S):
         try:
             prog = read_program(Path(file), data=data)

@@ -38,9 +38,8 @@ from ilcnc.program.model import (
     MOVE_ARC_CW,
     MOVE_LINE,
     MOVE_RAPID,
+    PLANE_AXES,
     PLANE_XY,
-    PLANE_XZ,
-    PLANE_YZ,
     SPAN_LAZY,
     STYLE_LITERAL,
     STYLE_NO_LEADING_ZERO,
@@ -367,7 +366,6 @@ class _State:
         return (o[0] + g[0], o[1] + g[1], o[2] + g[2])
 
 
-_PLANE_AXES = {PLANE_XY: (0, 1, 2), PLANE_XZ: (2, 0, 1), PLANE_YZ: (1, 2, 0)}
 
 
 class _Interpreter:
@@ -848,7 +846,7 @@ class _Interpreter:
         any_word = has.any(axis=1) | hasc.any(axis=1) | hasr
         is_arc = (motion >= 20) & any_word
         has_move = has.any(axis=1) | is_arc
-        a1, a2, lin = _PLANE_AXES[st.plane]
+        a1, a2, lin = PLANE_AXES[st.plane]
         # blocks the general interpreter must judge: axis words without a motion mode, IJK off the
         # plane, R with IJK, arcs without a centre, centre words on straight moves, G1-G3 without feed
         plane_ok = ~hasc[:, lin] & ~(hasr & (hasc[:, a1] | hasc[:, a2]))
@@ -928,7 +926,7 @@ class _Interpreter:
         """Fill the arc centres of a run into ``center``; return the first arc the general path must judge, or -1."""
         st = self.st
         unit = st.unit
-        a1, a2, _lin = _PLANE_AXES[st.plane]
+        a1, a2, _lin = PLANE_AXES[st.plane]
         use_r = arc & ~np.isnan(rvals)
         use_c = arc & ~use_r
         bad = np.zeros(arc.shape[0], dtype=bool)
@@ -967,7 +965,7 @@ class _Interpreter:
     def _arc(self, motion: int, letters: dict[str, Word], axis_words: list[Word | None], target: list[float],
              off: tuple[float, float, float], line: int, blk: Block, flags: int) -> None:
         st = self.st
-        a1, a2, _ = _PLANE_AXES[st.plane]
+        a1, a2, _ = PLANE_AXES[st.plane]
         cw = motion == 20
         start = st.pos
         rw = letters.get("R")
@@ -1021,7 +1019,7 @@ class _Interpreter:
             # LinuxCNC's limits, measured against rs274 (its sample good-arc.small sits at 0.028 mm, 0.11 %)
             if abs(r1 - r0) > _center_arc_tolerance_mm(st.unit) and abs(r1 - r0) > 1e-3 * r0:
                 raise self.error(line, f"arc radius to end ({r1:.4f} mm) differs from radius to start ({r0:.4f} mm)")
-        lin = _PLANE_AXES[st.plane][2]
+        lin = PLANE_AXES[st.plane][2]
         center[lin] = float("nan")
         length = _arc_length(start, target, center, a1, a2, lin, cw, turns)
         feed = self._feed_mm_min(length, line, letters)
@@ -1321,7 +1319,7 @@ def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: st
             s = f"{ends[i, a]:.{d}f}"
             if s.startswith("-") and float(s) == 0.0:
                 s = s[1:]
-            if s != last[a] or (kind >= MOVE_ARC_CW and a in _PLANE_AXES[plane][:2]):
+            if s != last[a] or (kind >= MOVE_ARC_CW and a in PLANE_AXES[plane][:2]):
                 words.append(f"{AXES_LETTERS[a]}{s}")
                 last[a] = s
         if len(words) == n_motion_words:
@@ -1329,7 +1327,7 @@ def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: st
             # write its position so the block is kept
             words.extend(f"{AXES_LETTERS[a]}{last[a]}" for a in range(3) if last[a] is not None)
         if kind >= MOVE_ARC_CW:
-            for a in _PLANE_AXES[plane][:2]:
+            for a in PLANE_AXES[plane][:2]:
                 words.append(f"{'IJK'[a]}{centers[i, a] - starts[i, a]:.{d}f}")
             if int(moves.turns[i]) > 1:
                 words.append(f"P{int(moves.turns[i])}")

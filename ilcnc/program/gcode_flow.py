@@ -169,15 +169,19 @@ def run_control_flow(
             states.add(key)
         return target
 
-    def value(text: str, line: int) -> float:
+    def read_at(text: str, pos: int, line: int) -> tuple[float, int]:
+        """One value at ``pos``: undefined values stop the interpretation, malformed ones are errors."""
         try:
-            v, end = read_value(text, 0, params)
+            return read_value(text, pos, params)
         except ExprValueError as exc:
             raise _Unsupported(line, str(exc)) from None
         except ExprError as exc:
             raise ProgramError(path, line, str(exc)) from None
         except RecursionError:
             raise ProgramError(path, line, "expression nested too deeply") from None
+
+    def value(text: str, line: int) -> float:
+        v, end = read_at(text, 0, line)
         if text[end:].strip():
             raise ProgramError(path, line, f"unexpected text after the value: {text[end:].strip()!r}")
         return v
@@ -190,14 +194,7 @@ def run_control_flow(
             if t[pos].isspace():
                 pos += 1
                 continue
-            try:
-                v, pos = read_value(t, pos, params)
-            except ExprValueError as exc:
-                raise _Unsupported(line, str(exc)) from None
-            except ExprError as exc:
-                raise ProgramError(path, line, str(exc)) from None
-            except RecursionError:
-                raise ProgramError(path, line, "expression nested too deeply") from None
+            v, pos = read_at(t, pos, line)
             out.append(v)
         return out
 

@@ -5,10 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, MoveTable
-
-# (first, second, linear) axis of each plane, as RS-274 orders them
-_PLANE_AXES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
+from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
 
 
 def arc_sweep_rad(moves: MoveTable) -> NDArray[np.float64]:
@@ -18,7 +15,7 @@ def arc_sweep_rad(moves: MoveTable) -> NDArray[np.float64]:
     is_arc = moves.kind >= MOVE_ARC_CW
     if not is_arc.any():
         return sweep
-    for plane, (a1, a2, _lin) in _PLANE_AXES.items():
+    for plane, (a1, a2, _lin) in PLANE_AXES.items():
         sel = is_arc & (moves.plane == plane)
         if not sel.any():
             continue
@@ -39,7 +36,7 @@ def move_lengths_mm(moves: MoveTable) -> NDArray[np.float64]:
     is_arc = moves.kind >= MOVE_ARC_CW
     if is_arc.any():
         sweep = arc_sweep_rad(moves)
-        for plane, (a1, a2, lin) in _PLANE_AXES.items():
+        for plane, (a1, a2, lin) in PLANE_AXES.items():
             sel = is_arc & (moves.plane == plane)
             if not sel.any():
                 continue
@@ -58,7 +55,7 @@ def extents_mm(moves: MoveTable, *, program_frame: bool = True) -> NDArray[np.fl
     is_arc = moves.kind >= MOVE_ARC_CW
     if is_arc.any():
         sweep = arc_sweep_rad(moves)
-        for plane, (a1, a2, _lin) in _PLANE_AXES.items():
+        for plane, (a1, a2, _lin) in PLANE_AXES.items():
             sel = np.flatnonzero(is_arc & (moves.plane == plane))
             if sel.size == 0:
                 continue

@@ -86,6 +86,7 @@ from ilcnc.program.model import (
     MOVE_ARC_CW,
     MOVE_LINE,
     MOVE_RAPID,
+    PLANE_AXES,
     PLANE_XY,
     PLANE_XZ,
     PLANE_YZ,
@@ -129,7 +130,6 @@ _ZERO3 = (0, 0, 0)
 _FALSE3 = (False, False, False)
 
 # (first, second, normal) axis of each plane; angles are measured from the first axis
-_PLANE_AXES = {PLANE_XY: (0, 1, 2), PLANE_XZ: (2, 0, 1), PLANE_YZ: (1, 2, 0)}
 _TOOL_AXIS_PLANE = {2: PLANE_XY, 1: PLANE_XZ, 0: PLANE_YZ}
 _PAIR_PLANE = {frozenset((0, 1)): PLANE_XY, frozenset((0, 2)): PLANE_XZ, frozenset((1, 2)): PLANE_YZ}
 _AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
@@ -1858,13 +1858,13 @@ class _Interp:
         return self.pole
 
     def polar_start(self, pole: list[float], plane: int) -> tuple[float, float]:
-        i0, i1, _i2 = _PLANE_AXES[plane]
+        i0, i1, _i2 = PLANE_AXES[plane]
         ra = self.pos[i0] - self.off[i0] - pole[i0]
         rb = self.pos[i1] - self.off[i1] - pole[i1]
         return math.hypot(ra, rb), math.degrees(math.atan2(rb, ra))
 
     def centre(self, pole: list[float], plane: int) -> list[float]:
-        i0, i1, i2 = _PLANE_AXES[plane]
+        i0, i1, i2 = PLANE_AXES[plane]
         c = [0.0, 0.0, 0.0]
         c[i0] = pole[i0] + self.off[i0]
         c[i1] = pole[i1] + self.off[i1]
@@ -1950,7 +1950,7 @@ class _Interp:
 
     def check_radius(self, start: list[float], end: list[float], centre: list[float], plane: int, line: int) -> None:
         """Warn when the end point of a C is off the circle through its start (the TNC may reject it)."""
-        i0, i1, _i2 = _PLANE_AXES[plane]
+        i0, i1, _i2 = PLANE_AXES[plane]
         r0 = math.hypot(start[i0] - centre[i0], start[i1] - centre[i1])
         r1 = math.hypot(end[i0] - centre[i0], end[i1] - centre[i1])
         if abs(r1 - r0) > ARC_TOLERANCE_MM:
@@ -1961,7 +1961,7 @@ class _Interp:
         mo, line, rapid, flags = self.motion_prologue(blk)
         dr = self.direction(mo, line, "CR")
         plane = self.plane
-        i0, i1, i2 = _PLANE_AXES[plane]
+        i0, i1, i2 = PLANE_AXES[plane]
         radius = self.num(mo.radius, line) * self.unit
         end, param = self.target(mo, line)
         if param:
@@ -2002,7 +2002,7 @@ class _Interp:
         return self._tangent(r, R_START, line, what, "before", "following")
 
     def _tangent(self, r: list, at: int, line: int, what: str, rel: str, which: str) -> tuple[float, float]:
-        i0, i1, _i2 = _PLANE_AXES[self.plane]
+        i0, i1, _i2 = PLANE_AXES[self.plane]
         if r[R_KIND] >= MOVE_ARC_CW:
             if r[R_PLANE] != self.plane:
                 raise _Stop(line, f"{what} {rel} an arc outside the working plane is not modelled")
@@ -2020,7 +2020,7 @@ class _Interp:
     def h_ct(self, blk: _Block, i: int) -> int | None:
         mo, line, rapid, flags = self.motion_prologue(blk)
         plane = self.plane
-        i0, i1, i2 = _PLANE_AXES[plane]
+        i0, i1, i2 = PLANE_AXES[plane]
         if self.corner is not None:
             raise _Stop(line, "CT after RND/CHF is not modelled")
         ta, tb = self.end_tangent(self.last, line, "CT")
@@ -2066,7 +2066,7 @@ class _Interp:
     def h_lp(self, blk: _Block, i: int) -> int | None:
         mo, line, rapid, flags = self.motion_prologue(blk)
         pole, plane = self.need_pole(line, "LP")
-        i0, i1, i2 = _PLANE_AXES[plane]
+        i0, i1, i2 = PLANE_AXES[plane]
         if any(ax != i2 for ax, *_rest in mo.coords):
             raise _Stop(line, "LP with a coordinate in the plane of the pole")
         r0, a0 = self.polar_start(pole, plane)
@@ -2089,7 +2089,7 @@ class _Interp:
         mo, line, rapid, flags = self.motion_prologue(blk)
         dr = self.direction(mo, line, "CP")
         pole, plane = self.need_pole(line, "CP")
-        i0, i1, i2 = _PLANE_AXES[plane]
+        i0, i1, i2 = PLANE_AXES[plane]
         if any(ax != i2 for ax, *_rest in mo.coords):
             raise _Stop(line, "CP with a coordinate in the plane of the pole")
         r0, a0 = self.polar_start(pole, plane)
@@ -2157,7 +2157,7 @@ class _Interp:
             raise _Stop(line, f"{what} must follow a contour element")
         if prev[R_KIND] >= MOVE_ARC_CW or nxt[R_KIND] >= MOVE_ARC_CW:
             raise _Stop(line, f"{what} next to a circular arc is not modelled")
-        i0, i1, i2 = _PLANE_AXES[self.plane]
+        i0, i1, i2 = PLANE_AXES[self.plane]
         a, p, b = prev[R_START], prev[R_END], nxt[R_END]
         if abs(a[i2] - p[i2]) > _EPS or abs(b[i2] - p[i2]) > _EPS:
             raise _Stop(line, f"{what} between lines that move the tool axis is not modelled")
@@ -2206,7 +2206,7 @@ class _Interp:
         what = f"APPR {mo.sub}"
         if mo.sub not in ("LT", "LN"):
             raise _Stop(line, f"{what} is not modelled")
-        _i0, _i1, i2 = _PLANE_AXES[self.plane]
+        _i0, _i1, i2 = PLANE_AXES[self.plane]
         if mo.polar or "CCA" in mo.extra or mo.radius is not None:
             raise _Stop(line, f"{what} with polar words, CCA or R is not valid here")
         if any(ax == i2 for ax, *_rest in mo.coords):
@@ -2229,7 +2229,7 @@ class _Interp:
     def resolve_appr(self, nxt: list) -> list[list]:
         line, sub, ps, pa, length, rcomp, feed, flags = self.appr  # type: ignore[misc]
         self.appr = None
-        i0, i1, _i2 = _PLANE_AXES[self.plane]
+        i0, i1, _i2 = PLANE_AXES[self.plane]
         ta, tb = self.start_tangent(nxt, line, f"APPR {sub}")
         ph = list(pa)
         if sub == "LT":
@@ -2252,7 +2252,7 @@ class _Interp:
         if self.corner is not None or self.appr is not None:
             raise _Stop(line, f"{what} directly after RND/CHF/APPR")
         length = self.len_value(mo, line, what)
-        i0, i1, _i2 = _PLANE_AXES[self.plane]
+        i0, i1, _i2 = PLANE_AXES[self.plane]
         ta, tb = self.end_tangent(self.last, line, what)
         comp = self.rcomp
         end = list(self.pos)
@@ -2722,7 +2722,7 @@ class _Writer:
         else:
             words = self.axes(p)
             if not words:
-                words = self.axes(p, force=(_PLANE_AXES.get(plane, (0, 1, 2))[0],))
+                words = self.axes(p, force=(PLANE_AXES.get(plane, (0, 1, 2))[0],))
         if kind == MOVE_RAPID:
             tail = " FMAX"
         else:
@@ -2730,7 +2730,7 @@ class _Writer:
         self.blocks.append("L" + words + tail + (" M91" if machine is not None else ""))
 
     def arc(self, kind: int, s: np.ndarray, p: np.ndarray, c: np.ndarray, plane: int, turns: int, feed: float) -> None:
-        i0, i1, i2 = _PLANE_AXES.get(plane, _PLANE_AXES[PLANE_XY])
+        i0, i1, i2 = PLANE_AXES.get(plane, PLANE_AXES[PLANE_XY])
         first, second = sorted((i0, i1))
         self.blocks.append(f"CC {_AXIS_LETTERS[first]}{self.num(float(c[first]))} "
                            f"{_AXIS_LETTERS[second]}{self.num(float(c[second]))}")
@@ -2752,7 +2752,7 @@ class _Writer:
 
 def _sweep_deg(kind: int, s: np.ndarray, p: np.ndarray, c: np.ndarray, plane: int) -> float:
     """Unsigned sweep of an arc in (0, 360] degrees."""
-    i0, i1, _i2 = _PLANE_AXES.get(plane, _PLANE_AXES[PLANE_XY])
+    i0, i1, _i2 = PLANE_AXES.get(plane, PLANE_AXES[PLANE_XY])
     a0 = math.atan2(s[i1] - c[i1], s[i0] - c[i0])
     a1 = math.atan2(p[i1] - c[i1], p[i0] - c[i0])
     sweep = math.degrees(a1 - a0 if kind == MOVE_ARC_CCW else a0 - a1) % 360.0

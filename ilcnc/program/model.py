@@ -61,6 +61,10 @@ PLANE_XY = 17
 PLANE_XZ = 18
 PLANE_YZ = 19
 
+#: (first, second, linear) axis index of each plane, as RS-274 orders them: the arc turns in the
+#: (first, second) plane, clockwise seen from the plane's positive normal.
+PLANE_AXES: dict[int, tuple[int, int, int]] = {PLANE_XY: (0, 1, 2), PLANE_XZ: (2, 0, 1), PLANE_YZ: (1, 2, 0)}
+
 AXES = "XYZ"
 MM_PER_INCH = 25.4
 
