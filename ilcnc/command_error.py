@@ -271,7 +271,7 @@ def plane_crossings(
     t_s : ndarray (K,)
         Time of the closest approach, s (NaN: never reached).
     """
-    from ilcnc.drives import njit  # numba, or plain Python when it is missing
+    from ilcnc._jit import njit  # numba, or plain Python when it is missing
 
     q = np.ascontiguousarray(np.nan_to_num(np.asarray(actual_mm, dtype=np.float64)))
     if q.shape[1] == 2:

@@ -68,18 +68,28 @@ plane (a plunge) has no left side: its signed error is 0.
 
 Performance
 -----------
-Everything is numpy on whole arrays, processed in chunks (``chunk`` samples,
-default 65 536) spread over a thread pool (numpy releases the GIL inside its
-loops); each thread works in reusable buffers, because re-allocating numpy
-temporaries of this size costs more than the arithmetic. The candidates of a
-window are compared with one integer minimum per candidate: the squared
-distance's IEEE bits with the candidate number in the lowest bits (the
-exact distance of the winner is computed afterwards). Measured on the 2-core
-development machine (5 million samples, ``window=2``, line segments, one
-thread): 6.3-6.9 million samples per CPU-second, which was 3.4-4.5 million
-per second of wall time while other jobs kept both cores busy (load average
-3-4); a second thread adds throughput only when a core is free. Arc-heavy programs (every third
-segment an arc) run at about 1.6 million samples per CPU-second.
+The search runs in compiled kernels (numba, the ``_k_*`` functions): one loop
+over the samples of a chunk (``chunk`` samples, default 65 536), the chunks
+spread over a thread pool (the kernels release the GIL). Per sample the
+straight candidates of the window are a few dozen flops on one row of a
+segment table; an arc candidate is first bounded by its radii and linear
+range and only evaluated when it could be nearer than the nearest line (on
+stellabee1 that leaves ~1 in 10); arc work (trigonometry, the Newton steps of
+helices and spirals) runs in separate loops, because a call in the hot loop
+slows numba's code down several times. The kernels repeat the arithmetic of
+the numpy path (:func:`_search`, :func:`_final`, the walk of :func:`_chunk`)
+operation for operation, so the results are the same bit for bit; the numpy
+path is the reference they are tested against and runs when numba is
+missing. The candidates of a window are compared with one integer minimum per
+candidate: the squared distance's IEEE bits with the candidate number in the
+lowest bits (the exact distance of the winner is computed afterwards), so the
+order they are taken in does not change the result.
+
+Measured on the 2-core development machine, one thread: 12-15 million
+samples per CPU-second on straight segments (compass.ngc; numpy path 3.5-6),
+8-13 million on stellabee1 (9 % of its samples on spirals; numpy path 3);
+both threads: the 57.7 M samples of stellabee1 in 3-7 s, up to half of it
+mapping the 5 GB of fresh memory the result occupies.
 """
 
 from __future__ import annotations
@@ -92,7 +102,29 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ilcnc._jit import HAVE_NUMBA, njit
 from ilcnc.program.model import MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, PLANE_AXES, PLANE_XY, MoveTable
+
+if HAVE_NUMBA:  # pragma: no cover - exercised by the environment, not by a test
+    from numba import types
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def _bits_of(typingctx, x):
+        """The IEEE bits of a float64 as an int64 (``x.view(np.int64)`` of a scalar)."""
+        def codegen(context, builder, signature, args):
+            return builder.bitcast(args[0], context.get_value_type(types.int64))
+
+        return types.int64(types.float64), codegen
+
+    @intrinsic
+    def _float_of(typingctx, x):
+        """The float64 whose IEEE bits are the int64 ``x``."""
+        def codegen(context, builder, signature, args):
+            return builder.bitcast(args[0], context.get_value_type(types.float64))
+
+        return types.float64(types.int64), codegen
+
 
 __all__ = [
     "DEFAULT_CHUNK",
@@ -121,6 +153,11 @@ _FAR = 1e150
 _FAR_D2 = 1e299
 _TWO_PI = 2.0 * math.pi
 _SIGN_CLEAR = np.int64(0x7FFFFFFFFFFFFFFF)
+#: An arc is left out of a window's search when all its points are farther than the best candidate by more
+#: than this (mm): far above the rounding of the distances, far below anything measured.
+_PRUNE_MM = 1e-6
+#: Take the compiled path (numba); False: the numpy path (the reference the kernels are checked against).
+_USE_KERNEL = HAVE_NUMBA
 
 
 class _Work:
@@ -441,6 +478,45 @@ class PathGeometry:
                 out[sel] = lv
         return out
 
+    # -- tables of the compiled kernel -------------------------------------------------------------
+
+    def _kernel_tables(self) -> tuple:
+        """The path as the compiled kernel reads it (built once): one row per segment and per arc.
+
+        ``seg`` (M, 8): start (``_FAR`` if inactive), direction, ``|d|^2``, ``1/|d|^2``; ``side`` (M, 4):
+        left normal, ``1/|d in plane|``; ``arc`` (A, 30): :attr:`_a_tab` by row, the sweep, the range of
+        the radius and of the linear axis (min, max), cos and sin of the angle at the start and the end;
+        ``arc_axes`` (A, 3): in-plane and linear axes; ``flags``: has arcs, axes of the common plane of
+        the straight segments (-1: none), several turns somewhere.
+        """
+        tab = getattr(self, "_ktab", None)
+        if tab is not None:
+            return tab
+        seg = np.ascontiguousarray(np.column_stack([self._ax, self._ay, self._az, self._dx, self._dy, self._dz,
+                                                    self._l2, self._il2]))
+        inv = self._inv_inplane if self._line_plane else np.zeros(len(self))
+        side = np.ascontiguousarray(np.column_stack([self._lx, self._ly, self._lz, inv]))
+        if self.has_arcs:
+            r1, lin1 = self._a_r0 + self._a_dr, self._a_lin0 + self._a_dlin
+            th_s = self._a_th0 + self._a_sig * (0.0 * self._a_sw)  # the angles _arc_d2(full=True) takes at f = 0, 1
+            th_e = self._a_th0 + self._a_sig * (1.0 * self._a_sw)
+            arc = np.ascontiguousarray(np.vstack([
+                self._a_tab, self._a_sw, np.minimum(self._a_r0, r1), np.maximum(self._a_r0, r1),
+                np.minimum(self._a_lin0, lin1), np.maximum(self._a_lin0, lin1),
+                np.cos(th_s), np.sin(th_s), np.cos(th_e), np.sin(th_e),
+            ]).T)
+            arc_axes = np.ascontiguousarray(np.column_stack([self._a_ia1, self._a_ia2, self._a_il]))
+            multi = self._a_multi
+        else:
+            arc = np.zeros((1, 30))
+            arc_axes = np.zeros((1, 3), np.int64)
+            multi = False
+        lp = self._line_plane or (-1, -1)
+        flags = np.array([int(self.has_arcs), lp[0], lp[1], int(multi)], dtype=np.int64)
+        tab = (seg, side, np.ascontiguousarray(self._arc_of), arc, arc_axes, flags)
+        self._ktab = tab
+        return tab
+
     # -- distance kernels -----------------------------------------------------------------------
 
     def _line_d2(self, px, py, pz, idx, ws: _Work):
@@ -749,8 +825,11 @@ def contour_error(
         p = np.column_stack([p, np.zeros(p.shape[0])])
     n = p.shape[0]
     m = len(path)
-    hint = np.broadcast_to(np.asarray(hint_seg, dtype=np.int64), (n,))
-    hint = np.clip(hint, 0, m - 1)
+    h = np.asarray(hint_seg)
+    if h.dtype.kind not in "iu" or h.dtype.itemsize > 8 or h.dtype == np.uint64:
+        h = h.astype(np.int64)
+    hint = np.empty(n, np.int64)  # clipped straight into the int64 field (no int64 copy of an int32 hint first)
+    np.clip(np.broadcast_to(h, (n,)), 0, m - 1, out=hint)
     w = int(window)
     if w < 0:
         raise ValueError("window must be >= 0")
@@ -763,8 +842,20 @@ def contour_error(
     nw = workers if workers is not None else (os.cpu_count() or 1)
     nw = max(1, min(int(nw), len(starts)))
     walked = [0] * nw
+    use_kernel = _USE_KERNEL
+    if use_kernel:
+        tabs = path._kernel_tables()
+        bits = max(1, (2 * w).bit_length())
+        pc = np.ascontiguousarray(p)
+        hc = hint
 
     def work(k: int) -> None:
+        if use_kernel:
+            iw, lo, wd2 = np.empty((5, chunk), np.int64), np.empty(chunk, np.bool_), np.empty(chunk)
+            for a in starts[k::nw]:
+                walked[k] += _k_chunk(*tabs, pc, hc, a, min(a + chunk, n), w, bits, int(max_walk), out.dist_mm, out.foot_mm,
+                                      out.vector_mm, out.seg, out.u, out.signed_mm, iw, lo, wd2)
+            return
         ws = _Work()
         for a in starts[k::nw]:
             sl = slice(a, min(a + chunk, n))
@@ -944,6 +1035,524 @@ def _chunk(path: PathGeometry, p, h, w: int, max_walk: int, out: ContourError, s
     if none.any():
         out.seg[sl][none] = -1
     out.signed_mm[sl] = signed
+    return walked
+
+
+# ---------------------------------------------------------------------------------------------
+# The compiled path: the same arithmetic, one sample at a time
+# ---------------------------------------------------------------------------------------------
+#
+# The kernels below are hand-written loops over samples (numba): they repeat, operation for operation,
+# the numpy kernels above (:meth:`PathGeometry._line_d2`, ``_arc_d2_fast``, ``_arc_d2``, :func:`_search`,
+# :func:`_final`, the walk of :func:`_chunk`), so they give the same numbers. Per sample the numpy path
+# makes ~40 passes over chunk-sized buffers for each of the 2w + 1 candidates, and gathers the arcs
+# among them with index arrays (which is why arcs cost ~4x a line there); here each candidate is a
+# few dozen flops on one row of the segment table.
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_npmin(a, b):  # pragma: no cover - compiled
+    """``np.minimum`` of two floats (NaN wins)."""
+    if a != a or b != b:
+        return a + b
+    return a if a <= b else b
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_mod2pi(x):  # pragma: no cover - compiled
+    """``np.mod(x, 2 pi)``."""
+    # fmod's exact remainder, without its loop where it is one subtraction (exact by Sterbenz's lemma)
+    if -_TWO_PI < x < _TWO_PI:
+        r = x
+    elif _TWO_PI <= x < 2.0 * _TWO_PI:
+        r = x - _TWO_PI
+    elif -2.0 * _TWO_PI < x <= -_TWO_PI:
+        r = x + _TWO_PI
+    else:
+        r = np.fmod(x, _TWO_PI)
+    if r != 0.0:
+        if r < 0.0:
+            r += _TWO_PI
+    else:
+        r = 0.0
+    return r
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_pick(x0, x1, x2, axis):  # pragma: no cover - compiled
+    """Component ``axis`` of ``(x0, x1, x2)`` (a tuple indexed at run time is much slower in numba)."""
+    if axis == 0:
+        return x0
+    if axis == 1:
+        return x1
+    return x2
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_clip01(x):  # pragma: no cover - compiled
+    if x < 0.0:
+        return 0.0
+    if x > 1.0:
+        return 1.0
+    return x
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_line_d2(segt, i, px, py, pz):  # pragma: no cover - compiled
+    """:meth:`PathGeometry._line_d2` of one point and segment ``i``."""
+    wx = px - segt[i, 0]
+    wy = py - segt[i, 1]
+    wz = pz - segt[i, 2]
+    s = wx * segt[i, 3]
+    s += segt[i, 4] * wy
+    s += segt[i, 5] * wz
+    t = _k_clip01(segt[i, 7] * s)
+    q = wx * wx + wy * wy
+    q += wz * wz
+    g = segt[i, 6] * t
+    s2 = (s * 2.0 - g) * t
+    return q - s2
+
+
+@njit(cache=True, nogil=True)
+def _k_arc_d2(arct, arci, multi_path, ja, p0, p1, p2):  # pragma: no cover - compiled
+    """:meth:`PathGeometry._arc_d2` of one point and arc row ``ja``: (d2, f, s, cos, sin) with ``s`` the angle of
+    the radial candidate from the start and the cosine and sine of its angle; :func:`_k_arc_foot` gives the rest."""
+    q1 = _k_pick(p0, p1, p2, arci[ja, 0]) - arct[ja, 0]
+    q2 = _k_pick(p0, p1, p2, arci[ja, 1]) - arct[ja, 1]
+    h = _k_pick(p0, p1, p2, arci[ja, 2])
+    th0, sg, sw = arct[ja, 16], arct[ja, 2], arct[ja, 21]
+    r0, dr = arct[ja, 9], arct[ja, 18]
+    lin0, dlin = arct[ja, 10], arct[ja, 19]
+    sp = _k_mod2pi(sg * (math.atan2(q2, q1) - th0))
+    if multi_path and sw > _TWO_PI + 1e-9:
+        # several turns: take the turn whose linear-axis position is nearest the sample
+        if dlin != 0.0:
+            s_ax = (h - lin0) * sw / dlin
+        else:
+            s_ax = sp
+        nt = np.rint((s_ax - sp) / _TWO_PI)
+        hi = max(math.floor((sw - sp) / _TWO_PI), 0.0)
+        if nt < 0.0:
+            nt = 0.0
+        elif nt > hi:
+            nt = hi
+        sp = sp + _TWO_PI * nt
+    s = _k_npmin(sp, sw)
+    if arct[ja, 20] > 0.0:
+        # helix / spiral: two Newton steps on |P(s) - q|^2 from the radial foot
+        rp = dr / sw
+        kp = dlin / sw
+        for _ in range(2):
+            th = th0 + sg * s
+            c = math.cos(th)
+            sn = math.sin(th)
+            r = r0 + rp * s
+            g1 = r * c - q1
+            g2 = r * sn - q2
+            g3 = lin0 + kp * s - h
+            d1 = rp * c - sg * r * sn
+            d2 = rp * sn + sg * r * c
+            d3 = kp
+            dd1 = -2.0 * sg * rp * sn - r * c
+            dd2 = 2.0 * sg * rp * c - r * sn
+            num = g1 * d1 + g2 * d2 + g3 * d3
+            den = d1 * d1 + d2 * d2 + d3 * d3 + g1 * dd1 + g2 * dd2
+            step = num / den if den > 0.0 else 0.0
+            s = s - step
+            if s < 0.0:
+                s = 0.0
+            elif s > sw:
+                s = sw
+    # candidates: the (refined) radial foot, the start and the end point
+    f = s / sw
+    th = th0 + sg * s
+    r = r0 + dr * f
+    cth = math.cos(th)
+    sth = math.sin(th)
+    e1 = r * cth - q1
+    e2 = r * sth - q2
+    e3 = lin0 + dlin * f - h
+    d2 = e1 * e1 + e2 * e2 + e3 * e3
+    srad = s
+    g1 = arct[ja, 11] - q1
+    g2 = arct[ja, 12] - q2
+    g3 = lin0 - h
+    de = g1 * g1 + g2 * g2 + g3 * g3
+    if de < d2:
+        d2 = de
+        f = 0.0
+    g1 = arct[ja, 13] - q1
+    g2 = arct[ja, 14] - q2
+    g3 = arct[ja, 15] - h
+    de = g1 * g1 + g2 * g2 + g3 * g3
+    if de < d2:
+        d2 = de
+        f = 1.0
+    return d2, f, srad, cth, sth
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_set(x0, x1, x2, axis, value):  # pragma: no cover - compiled
+    """``(x0, x1, x2)`` with component ``axis`` replaced (scalars stay in registers; a small array is a heap
+    allocation per call)."""
+    if axis == 0:
+        return value, x1, x2
+    if axis == 1:
+        return x0, value, x2
+    return x0, x1, value
+
+
+@njit(cache=True, nogil=True)
+def _k_arc_foot(arct, arci, ja, f, srad, cth, sth):  # pragma: no cover - compiled
+    """Foot (x, y, z) at fraction ``f`` of arc row ``ja`` and the unit left normal (x, y, z), as ``_arc_d2(full=True)``.
+
+    ``srad``, ``cth``, ``sth``: the radial candidate of :func:`_k_arc_d2`, whose cosine and sine are reused
+    when ``f`` is its fraction (the same angle, bit for bit); the end points' are in the table.
+    """
+    ia1, ia2, il = arci[ja, 0], arci[ja, 1], arci[ja, 2]
+    sg = arct[ja, 2]
+    sw = arct[ja, 21]
+    r = arct[ja, 9] + arct[ja, 18] * f
+    fs = f * sw
+    if f == 0.0:
+        c, sn = arct[ja, 26], arct[ja, 27]
+    elif f == 1.0:
+        c, sn = arct[ja, 28], arct[ja, 29]
+    elif fs == srad:
+        c, sn = cth, sth
+    else:
+        th = arct[ja, 16] + sg * fs
+        c = math.cos(th)
+        sn = math.sin(th)
+    x0, x1, x2 = _k_set(0.0, 0.0, 0.0, ia1, arct[ja, 0] + r * c)
+    x0, x1, x2 = _k_set(x0, x1, x2, ia2, arct[ja, 1] + r * sn)
+    x0, x1, x2 = _k_set(x0, x1, x2, il, arct[ja, 10] + arct[ja, 19] * f)
+    # left of the direction of travel = -sig * radial unit (CCW: towards the centre)
+    l0, l1, l2 = _k_set(0.0, 0.0, 0.0, ia1, -sg * c)
+    l0, l1, l2 = _k_set(l0, l1, l2, ia2, -sg * sn)
+    return x0, x1, x2, l0, l1, l2
+
+
+@njit(cache=True, nogil=True)
+def _k_arc_d2_fast(arct, arci, multi_path, ja, p0, p1, p2):  # pragma: no cover - compiled
+    """:meth:`PathGeometry._arc_d2_fast` of one point and arc row ``ja``."""
+    q1 = _k_pick(p0, p1, p2, arci[ja, 0]) - arct[ja, 0]
+    q2 = _k_pick(p0, p1, p2, arci[ja, 1]) - arct[ja, 1]
+    h = _k_pick(p0, p1, p2, arci[ja, 2])
+    sg = arct[ja, 2]
+    cs = (arct[ja, 3] * q2 - arct[ja, 4] * q1) * sg
+    ce = (q1 * arct[ja, 6] - q2 * arct[ja, 5]) * sg
+    pos_s = cs >= 0.0
+    pos_e = ce >= 0.0
+    inside = (pos_s and pos_e) if arct[ja, 7] > 0.0 else (pos_s or pos_e)
+    inside = inside or arct[ja, 8] > 0.0
+    rho = math.hypot(q1, q2)
+    r = arct[ja, 9]
+    lin = arct[ja, 10]
+    if arct[ja, 20] > 0.0:
+        f = math.atan2(q2, q1)
+        f -= arct[ja, 16]
+        f *= sg
+        f = _k_mod2pi(f)
+        f *= arct[ja, 17]
+        f = _k_npmin(f, 1.0)
+        r = arct[ja, 18] * f + r
+        lin = arct[ja, 19] * f + lin
+    rho -= r
+    rho *= rho
+    d2 = h - lin
+    d2 *= d2
+    d2 += rho
+    g = q1 - arct[ja, 11]
+    d2s = g * g
+    g = q2 - arct[ja, 12]
+    d2s += g * g
+    g = h - arct[ja, 10]
+    d2s += g * g
+    g = q1 - arct[ja, 13]
+    d2e = g * g
+    g = q2 - arct[ja, 14]
+    d2e += g * g
+    g = h - arct[ja, 15]
+    d2e += g * g
+    d2s = _k_npmin(d2s, d2e)
+    d2 = _k_npmin(d2, d2s)
+    if not inside:
+        d2 = d2s
+    if multi_path and arct[ja, 21] > _TWO_PI + 1e-9:
+        d2 = _k_arc_d2(arct, arci, multi_path, ja, p0, p1, p2)[0]
+    return d2
+
+
+_KEY_MAX = np.int64(0x7FFFFFFFFFFFFFFF)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_arc_pruned(arct, arci, ja, px, py, pz, best, keep):  # pragma: no cover - compiled
+    """Arc row ``ja`` cannot beat the key ``best``: all its points are farther than the best distance by more
+    than :data:`_PRUNE_MM` (its radii and linear range bound it; rounding is ~1e-13 mm)."""
+    if best == _KEY_MAX:
+        return False
+    q1 = _k_pick(px, py, pz, arci[ja, 0]) - arct[ja, 0]
+    q2 = _k_pick(px, py, pz, arci[ja, 1]) - arct[ja, 1]
+    h3 = _k_pick(px, py, pz, arci[ja, 2])
+    rho = math.sqrt(q1 * q1 + q2 * q2)
+    gr = max(max(rho - arct[ja, 23], arct[ja, 22] - rho), 0.0)
+    gl = max(max(h3 - arct[ja, 25], arct[ja, 24] - h3), 0.0)
+    return math.sqrt(gr * gr + gl * gl) > math.sqrt(_float_of(best & keep)) + _PRUNE_MM
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_search_lines(segt, arc_of, arct, arci, flags, m, px, py, pz, h, w, keep):  # pragma: no cover - compiled
+    """The straight candidates of :func:`_search` for one point: (best key, an arc candidate is left to do).
+
+    The key is the squared distance's bits (sign cleared) with the candidate number in the low bits, so the
+    minimum does not depend on the order the candidates are taken in (ties go to the lower number): the arcs
+    can come afterwards (:func:`_k_search_arcs`), with the nearest line as the bound that prunes them. No
+    call to a compiled function here: one in the loop makes numba's code several times slower.
+    """
+    best = _KEY_MAX
+    arcs = False
+    for jj in range(2 * w + 1):
+        i = min(max(h + jj - w, 0), m - 1)
+        if flags[0] and arc_of[i] >= 0:
+            arcs = True
+            continue
+        key = (_bits_of(_k_line_d2(segt, i, px, py, pz)) & keep) | np.int64(jj)
+        if key < best:
+            best = key
+    if arcs:  # pruned by the lines already?
+        arcs = False
+        for jj in range(2 * w + 1):
+            i = min(max(h + jj - w, 0), m - 1)
+            ja = arc_of[i]
+            if ja >= 0 and not _k_arc_pruned(arct, arci, ja, px, py, pz, best, keep):
+                arcs = True
+                break
+    return best, arcs
+
+
+@njit(cache=True, nogil=True)
+def _k_search_arcs(arct, arci, arc_of, flags, m, px, py, pz, h, w, keep, best):  # pragma: no cover - compiled
+    """The arc candidates of :func:`_search` for one point, after the lines: the best key."""
+    for jj in range(2 * w + 1):
+        i = min(max(h + jj - w, 0), m - 1)
+        ja = arc_of[i]
+        if ja < 0 or _k_arc_pruned(arct, arci, ja, px, py, pz, best, keep):
+            continue
+        key = (_bits_of(_k_arc_d2_fast(arct, arci, flags[3] != 0, ja, px, py, pz)) & keep) | np.int64(jj)
+        if key < best:
+            best = key
+    return best
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_decode(best, h, w, bits, m):  # pragma: no cover - compiled
+    """Segment and squared distance (``>= _FAR_D2``: none) of a best key, as :func:`_search` returns them."""
+    low = (np.int64(1) << bits) - 1
+    return min(max((best & low) + h - w, 0), m - 1), _float_of(best & ~low & _KEY_MAX)
+
+
+@njit(cache=True, nogil=True)
+def _k_search(segt, arc_of, arct, arci, flags, m, px, py, pz, h, w, bits):  # pragma: no cover - compiled
+    """:func:`_search` of one point: (segment, key of its squared distance as float)."""
+    keep = _KEY_MAX & ~((np.int64(1) << bits) - 1)
+    best, arcs = _k_search_lines(segt, arc_of, arct, arci, flags, m, px, py, pz, h, w, keep)
+    if arcs:
+        best = _k_search_arcs(arct, arci, arc_of, flags, m, px, py, pz, h, w, keep, best)
+    return _k_decode(best, h, w, bits, m)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_final_line(segt, side, flags, px, py, pz, sg):  # pragma: no cover - compiled
+    """:func:`_final` of one point on straight segment ``sg``: (fraction, vx, vy, vz, d2, signed)."""
+    wx = px - segt[sg, 0]
+    wy = py - segt[sg, 1]
+    wz = pz - segt[sg, 2]
+    dx, dy, dz = segt[sg, 3], segt[sg, 4], segt[sg, 5]
+    t = wx * dx
+    t += wy * dy
+    t += wz * dz
+    t = _k_clip01(t * segt[sg, 7])
+    vx = t * dx - wx
+    vy = t * dy - wy
+    vz = t * dz - wz
+    if flags[1] >= 0:
+        # d[j] v[i] - d[i] v[j] of the plane's axes (i, j) = (0, 1), (2, 0) or (1, 2)
+        if flags[1] == 0:
+            signed = dy * vx - dx * vy
+        elif flags[1] == 2:
+            signed = dx * vz - dz * vx
+        else:
+            signed = dz * vy - dy * vz
+        signed *= side[sg, 3]
+    else:
+        signed = side[sg, 0] * vx
+        signed += side[sg, 1] * vy
+        signed += side[sg, 2] * vz
+        signed = -signed
+    d2 = vx * vx
+    d2 += vy * vy
+    d2 += vz * vz
+    return t, vx, vy, vz, d2, signed
+
+
+@njit(cache=True, nogil=True)
+def _k_final_arc(arct, arci, flags, ja, px, py, pz):  # pragma: no cover - compiled
+    """:func:`_final` of one point on arc row ``ja``: (fraction, vx, vy, vz, d2, signed)."""
+    _d2, t, srad, cth, sth = _k_arc_d2(arct, arci, flags[3] != 0, ja, px, py, pz)
+    fx, fy, fz, lx, ly, lz = _k_arc_foot(arct, arci, ja, t, srad, cth, sth)
+    vx = fx - px
+    vy = fy - py
+    vz = fz - pz
+    signed = -(vx * lx + vy * ly + vz * lz)
+    d2 = vx * vx
+    d2 += vy * vy
+    d2 += vz * vz
+    return t, vx, vy, vz, d2, signed
+
+
+@njit(cache=True, nogil=True)
+def _k_final(segt, side, arc_of, arct, arci, flags, px, py, pz, sg):  # pragma: no cover - compiled
+    """:func:`_final` of one point on segment ``sg``: (fraction, vx, vy, vz, d2, signed)."""
+    ja = arc_of[sg] if flags[0] else -1
+    if ja >= 0:
+        return _k_final_arc(arct, arci, flags, ja, px, py, pz)
+    return _k_final_line(segt, side, flags, px, py, pz, sg)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_store(k, p, sg, t, vx, vy, vz, d2, sv, dist, foot, vec, segout, u, signed):  # pragma: no cover - compiled
+    """Write the result of sample ``k``: foot on segment ``sg`` at fraction ``t``, error vector, ``d2``, signed."""
+    segout[k] = sg
+    u[k] = sg + t
+    dist[k] = math.sqrt(d2)
+    vec[k, 0] = vx
+    vec[k, 1] = vy
+    vec[k, 2] = vz
+    foot[k, 0] = p[k, 0] + vx
+    foot[k, 1] = p[k, 1] + vy
+    foot[k, 2] = p[k, 2] + vz
+    signed[k] = sv
+
+
+@njit(cache=True, nogil=True)
+def _k_chunk(segt, side, arc_of, arct, arci, flags, p, hint, a0, a1, w, bits, max_walk, dist, foot, vec, segout, u,
+             signed, iw, lo, wd2):  # pragma: no cover - compiled
+    """:func:`_chunk` of samples ``a0:a1``: writes the outputs and returns the number of walks.
+
+    ``bits`` as in :func:`_search`. Work space, at least ``a1 - a0`` long: ``iw`` (5 rows, int64: walking
+    samples, their window centres, best keys, samples with arcs to search, samples whose foot is on an
+    arc), ``lo`` (bool), ``wd2`` (float64). The straight segments are done in loops without calls, the
+    arcs afterwards in loops of their own (see :func:`_k_search_lines`).
+    """
+    m = segt.shape[0]
+    nan = np.nan
+    keep = _KEY_MAX & ~((np.int64(1) << bits) - 1)
+    walkers, cur, bestk, pend, arcq = iw[0], iw[1], iw[2], iw[3], iw[4]
+    # 1. the straight candidates of every sample
+    npend = 0
+    for k in range(a0, a1):
+        best, arcs = _k_search_lines(segt, arc_of, arct, arci, flags, m, p[k, 0], p[k, 1], p[k, 2], hint[k], w, keep)
+        bestk[k - a0] = best
+        if arcs:
+            pend[npend] = k
+            npend += 1
+    # 2. the arcs not pruned by the nearest line
+    for q in range(npend):
+        k = pend[q]
+        bestk[k - a0] = _k_search_arcs(arct, arci, arc_of, flags, m, p[k, 0], p[k, 1], p[k, 2], hint[k], w, keep,
+                                       bestk[k - a0])
+    # 3. the exact foot of every sample on a straight segment (arcs: step 4)
+    nwalk = 0
+    narc = 0
+    for k in range(a0, a1):
+        h = hint[k]
+        sg, d2k = _k_decode(bestk[k - a0], h, w, bits, m)
+        if not d2k < _FAR_D2:  # no active segment in the window, or a NaN sample
+            segout[k] = -1
+            dist[k] = nan
+            u[k] = nan
+            signed[k] = nan
+            for c in range(3):
+                vec[k, c] = nan
+                foot[k, c] = nan
+            continue
+        if flags[0] and arc_of[sg] >= 0:
+            segout[k] = sg
+            arcq[narc] = k
+            narc += 1
+            continue
+        t, vx, vy, vz, d2, sv = _k_final_line(segt, side, flags, p[k, 0], p[k, 1], p[k, 2], sg)
+        _k_store(k, p, sg, t, vx, vy, vz, d2, sv, dist, foot, vec, segout, u, signed)
+        if max_walk > 0 and w < m and abs(sg - h) == w:
+            walkers[nwalk] = k
+            cur[nwalk] = h
+            wd2[nwalk] = d2
+            nwalk += 1
+    # 4. feet on arcs
+    for q in range(narc):
+        k = arcq[q]
+        sg = segout[k]
+        t, vx, vy, vz, d2, sv = _k_final_arc(arct, arci, flags, arc_of[sg], p[k, 0], p[k, 1], p[k, 2])
+        _k_store(k, p, sg, t, vx, vy, vz, d2, sv, dist, foot, vec, segout, u, signed)
+        h = hint[k]
+        if max_walk > 0 and w < m and abs(sg - h) == w:
+            walkers[nwalk] = k
+            cur[nwalk] = h
+            wd2[nwalk] = d2
+            nwalk += 1
+    # 5. the walk, as the numpy path does it chunk-wide: every round moves the windows of all samples still at
+    #    a window edge, and the rounds stop when no sample got nearer (a sample that does not get nearer
+    #    swings back and forth with the others until then: it is counted each time, as there); the order of
+    #    the walking samples does not matter
+    walked = 0
+    shift = max(w, 1)
+    for _ in range(max_walk if w < m else 0):
+        if nwalk == 0:
+            break
+        nk = 0
+        for q in range(nwalk):
+            k = walkers[q]
+            sc, cc = segout[k], cur[q]
+            at_lo = sc == cc - w and cc - w > 0
+            at_hi = sc == cc + w and cc + w < m - 1
+            if at_lo or at_hi:
+                walkers[nk] = k
+                cur[nk] = cc
+                wd2[nk] = wd2[q]
+                lo[nk] = at_lo
+                nk += 1
+        nwalk = nk
+        if nwalk == 0:
+            break
+        walked += nwalk
+        better = 0
+        for q in range(nwalk):
+            k = walkers[q]
+            c = segout[k] - shift if lo[q] else segout[k] + shift
+            c = min(max(c, 0), m - 1)
+            cur[q] = c
+            px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+            s2, _dk = _k_search(segt, arc_of, arct, arci, flags, m, px, py, pz, c, w, bits)
+            t, vx, vy, vz, d2, sv = _k_final(segt, side, arc_of, arct, arci, flags, px, py, pz, s2)
+            if d2 < wd2[q]:
+                better += 1
+                wd2[q] = d2
+                _k_store(k, p, s2, t, vx, vy, vz, d2, sv, dist, foot, vec, segout, u, signed)
+        if better == 0:
+            break
+        # samples whose best is (still or again) at an edge of their window walk on
+        nk = 0
+        for q in range(nwalk):
+            k = walkers[q]
+            if abs(segout[k] - cur[q]) == w:
+                walkers[nk] = k
+                cur[nk] = cur[q]
+                wd2[nk] = wd2[q]
+                nk += 1
+        nwalk = nk
     return walked
 
 

@@ -92,8 +92,11 @@ continuous closed loops (mass_damper_pid, first_order_delay,
 transfer_function) are discretised as closed loops.
 
 The resulting transfer function ``H(z) = z^{−d}·B(z⁻¹)/A(z⁻¹)`` is simulated
-with :func:`scipy.signal.lfilter` — no per-sample Python loop — in a
-deflated form that keeps the static gain exact: with the model's DC gain
+with :func:`scipy.signal.lfilter` (:func:`filter_deviation`, :func:`axis_response`;
+:func:`simulate_drives` runs the same recursion, operation for operation, in
+one compiled pass per axis that also forms the deviation, the difference, the
+delay and the offset, the axes in parallel threads) — no per-sample Python
+loop — in a deflated form that keeps the static gain exact: with the model's DC gain
 ``g`` (known exactly from the continuous model),
 ``H = g + (1 − z⁻¹)·C(z⁻¹)/A(z⁻¹)``, so ``q = r0 + g·(r − r0) +
 C/A·Δr``. Servo-rate poles cluster near ``z = 1`` (the slow PID poles of
@@ -132,13 +135,16 @@ once.
 from __future__ import annotations
 
 import math
+import os
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.signal import cont2discrete, lfilter, ss2tf, tf2ss
 
+from ilcnc._jit import HAVE_NUMBA, njit
 from ilcnc.errors import ProfileError
 from ilcnc.profile import (
     AXIS_NAMES,
@@ -151,25 +157,6 @@ from ilcnc.profile import (
     TransferFunctionDrive,
     has_position_loop,
 )
-
-try:  # pragma: no cover - exercised by the environment, not by a test
-    from numba import njit
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover
-    HAVE_NUMBA = False
-
-    def njit(*args, **kwargs):  # type: ignore[no-redef]
-        """Stand-in for :func:`numba.njit` when numba is missing: the function runs as Python."""
-
-        def wrap(f):
-            f.py_func = f
-            return f
-
-        if args and callable(args[0]):
-            return wrap(args[0])
-        return wrap
-
 
 __all__ = [
     "FRICTION_SUBSTEP_S",
@@ -584,18 +571,79 @@ def filter_deviation(model: DiscreteModel, dev: np.ndarray) -> np.ndarray:
         ``H(z)·dev`` from rest, computed in the deflated form
         ``g·dev + (1 − z⁻¹)·C/A`` (see the module docstring).
     """
+    c, aa, g = _deflated(model)
+    step = np.diff(dev, prepend=dev[:1])
+    y = g * dev
+    if len(c):
+        y = y + lfilter(c, aa, step)
+    return _shift(y, model.delay_samples)
+
+
+def _deflated(model: DiscreteModel) -> tuple[np.ndarray, np.ndarray, float]:
+    """The deflated form ``g + (1 − z⁻¹)·C/A`` of a model: ``(C, A, g)``, C one coefficient shorter than A."""
     b, a, g = model.b, model.a, model.dc_gain
     n = max(len(b), len(a))
     bb = np.zeros(n)
     bb[: len(b)] = b
     aa = np.zeros(n)
     aa[: len(a)] = a
-    c = np.cumsum(bb - g * aa)[:-1]
-    step = np.diff(dev, prepend=dev[:1])
-    y = g * dev
+    return np.cumsum(bb - g * aa)[:-1], aa, g
+
+
+def _filter_reference(model: DiscreteModel, ref: np.ndarray, out: np.ndarray) -> None:
+    """``out = r[0] + H(z)·(r − r[0])`` of one axis in one compiled pass (:func:`_deflated_kernel`).
+
+    The numbers of :func:`filter_deviation` (``scipy.signal.lfilter``'s recursion, normalised as it
+    normalises, operation for operation); ``ref`` and ``out`` may be strided columns. Raises
+    ``ValueError`` when the reference is not finite.
+    """
+    c, aa, g = _deflated(model)
     if len(c):
-        y = y + lfilter(c, aa, step)
-    return _shift(y, model.delay_samples)
+        # lfilter pads b and a to one length and divides both by a[0]
+        bn = np.zeros(len(aa))
+        bn[: len(c)] = c
+        bn = bn / aa[0]
+        an = aa / aa[0]
+    else:
+        bn = an = np.zeros(0)
+    if not _deflated_kernel(ref, out, bn, an, float(g), int(model.delay_samples)):
+        raise ValueError("the reference contains NaN or infinite values")
+
+
+@njit(cache=True, nogil=True)
+def _deflated_kernel(r, out, bn, an, g, delay):  # pragma: no cover - compiled; checked against filter_deviation
+    """``out[k + d] = r0 + g·dev[k] + C/A·Δdev[k]``, ``out[:d] = r0``, ``dev = r − r0``; False if ``r`` is not finite.
+
+    One pass instead of seven whole-array temporaries (deviation, difference, gain, filter, sum, shift,
+    offset) per axis; the filter is the transposed direct form II of ``scipy.signal.lfilter`` with its
+    operations in its order (``y = z0 + b0·x``; ``z[i] = z[i+1] + x·b[i+1] − y·a[i+1]``), so the
+    numbers are the same. A hand-written loop: a recursion does not vectorise.
+    """
+    n = r.shape[0]
+    nf = an.shape[0]
+    z = np.zeros(max(nf - 1, 1))
+    finite = True
+    r0 = r[0] if n else 0.0
+    prev = 0.0
+    for k in range(min(delay, n)):
+        out[k] = r0 + 0.0
+    for k in range(n):
+        x = r[k]
+        if not math.isfinite(x):
+            finite = False
+        dev = x - r0
+        step = dev - (prev if k > 0 else dev)
+        prev = dev
+        y = g * dev
+        if nf > 1:
+            lf = z[0] + bn[0] * step
+            for i in range(nf - 2):
+                z[i] = z[i + 1] + step * bn[i + 1] - lf * an[i + 1]
+            z[nf - 2] = step * bn[nf - 1] - lf * an[nf - 1]
+            y = y + lf
+        if k + delay < n:
+            out[k + delay] = r0 + y
+    return finite
 
 
 # --------------------------------------------------------------------------
@@ -826,6 +874,55 @@ def _kernel_arrays(plants: list[_Plant], period_s: float) -> dict[str, np.ndarra
     return arr
 
 
+def _friction_column(plant: _Plant, ref: np.ndarray, out: np.ndarray, period_s: float) -> None:
+    """``out = r[0] + q`` of one friction axis (what :func:`axis_response` computes) without whole-array temporaries."""
+    if ref.shape[0] and not _all_finite(ref):
+        raise ValueError("the reference contains NaN or infinite values")
+    _warn_no_numba()
+    arr = _kernel_arrays([plant], period_s)
+    args = [arr[k][0] for k in _FRICTION_ARGS]
+    if ref.shape[0] and not _friction_ref_kernel(ref, out, float(period_s), *args):  # pragma: no cover
+        raise DriveModelError("the simulated loop diverged (unstable closed loop)")
+
+
+@njit(cache=True, nogil=True)
+def _all_finite(x):  # pragma: no cover - compiled
+    """``np.all(np.isfinite(x))`` without a temporary."""
+    for k in range(x.shape[0]):
+        if not math.isfinite(x[k]):
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _friction_ref_kernel(
+    ref, out, period_s, cq, kff, kerr, nsub, phih, guh, gfh, cv, bstick, fc, fbreak, vs, phis, gus
+):  # pragma: no cover - compiled; checked against _friction_kernel
+    """:func:`_friction_kernel` fed from the reference itself: the deviation ``r − r0`` and the
+    velocity ``(dev[k] − dev[k−1]) / T`` are formed per sample and ``r0 + q`` is written to ``out``
+    (same numbers, no whole-array temporaries). False if the output is not finite."""
+    npts = ref.shape[0]
+    n = cq.shape[0]
+    x = np.zeros(n)
+    xn = np.zeros(n)
+    r0 = ref[0]
+    prev = 0.0
+    ok = True
+    for k in range(npts):
+        dev = ref[k] - r0
+        vref = (dev - (prev if k > 0 else dev)) / period_s
+        prev = dev
+        q = 0.0
+        for i in range(n):
+            q += cq[i] * x[i]
+        if not math.isfinite(q):
+            ok = False
+        out[k] = r0 + q
+        u = kff * vref + kerr * (dev - q)
+        _friction_steps(x, xn, u, nsub, phih, guh, gfh, cv, bstick, fc, fbreak, vs, phis, gus)
+    return ok
+
+
 def _run_loop(plants: list[_Plant], dev: np.ndarray, period_s: float, nrm: np.ndarray, gain: float) -> np.ndarray:
     """Run the compiled loop on deviations ``dev`` (N, m); returns position deviations (N, m)."""
     _warn_no_numba()
@@ -1029,7 +1126,7 @@ def simulate_drives(ref_mm: np.ndarray, profile: MachineProfile) -> np.ndarray:
         raise ValueError(f"the reference must have shape (N, 3) (columns x, y, z) or (N, 2), got {r.shape}")
     period = profile.machine.servo_period_s
     names = AXIS_NAMES[: r.shape[1]]
-    out = r.copy()
+    out = np.empty_like(r)
     done: set[str] = set()
     ctl = profile.controller
     if ctl.type == "cross_coupled" and all(ax in names for ax in ctl.coupled_axes):
@@ -1041,11 +1138,48 @@ def simulate_drives(ref_mm: np.ndarray, profile: MachineProfile) -> np.ndarray:
             where = f"controller.coupled_axes ({', '.join(ctl.coupled_axes)})"
             raise ProfileError(profile.path, None, f"{where}: {exc}") from None
         done.update(ctl.coupled_axes)
+    jobs = []
     for col, ax in enumerate(names):
-        if ax in done or ax not in profile.axes:
+        if ax in done:
+            continue
+        if ax not in profile.axes:
+            out[:, col] = r[:, col]
             continue
         try:
-            out[:, col] = axis_response(profile.axes[ax].drive, r[:, col], period)
+            jobs.append((ax, _axis_job(profile.axes[ax].drive, r[:, col], out[:, col], period)))
         except DriveModelError as exc:
             raise ProfileError(profile.path, None, f"axes.{ax}.drive: {exc}") from None
+
+    def run(job: tuple[str, Callable[[], None]]) -> None:
+        try:
+            job[1]()
+        except DriveModelError as exc:  # pragma: no cover - a stable model does not diverge
+            raise ProfileError(profile.path, None, f"axes.{job[0]}.drive: {exc}") from None
+
+    # the compiled loops release the GIL: the axes run side by side
+    nw = min(len(jobs), os.cpu_count() or 1)
+    if nw > 1 and r.shape[0] >= _PARALLEL_SAMPLES:
+        with ThreadPoolExecutor(max_workers=nw) as ex:
+            list(ex.map(run, jobs))
+    else:
+        for job in jobs:
+            run(job)
     return out
+
+
+#: References at least this long run their axes in parallel threads.
+_PARALLEL_SAMPLES = 100_000
+
+
+def _axis_job(drive: DriveModel, ref: np.ndarray, out: np.ndarray, period_s: float) -> Callable[[], None]:
+    """The simulation of one axis into ``out`` (a column of the result), to be run (models are built now,
+    so an unstable one raises here)."""
+    if isinstance(drive, PFfFrictionDrive) and max(drive.coulomb_n, drive.static_n) > 0:
+        plant = _pff_plant(drive)
+
+        def run() -> None:
+            _friction_column(plant, ref, out, period_s)
+
+        return run
+    model = discrete_model(drive, period_s)
+    return lambda: _filter_reference(model, ref, out)

@@ -1402,7 +1402,8 @@ def _schedule_kernel() -> tuple[Any, Any, Any]:
     """The compiled kernel, its distance function and the friction step of :mod:`ilcnc.drives` (plain Python
     without numba). The loop is :mod:`ilcnc.drives`'s own (its private sub-step and matrices), so with a
     constant gain it reproduces :func:`ilcnc.drives.simulate_drives` to rounding."""
-    from ilcnc.drives import _friction_steps, njit
+    from ilcnc._jit import njit
+    from ilcnc.drives import _friction_steps
 
     k = _SCHEDULE_KERNELS.get("kernel")
     if k is None:

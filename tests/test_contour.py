@@ -540,3 +540,61 @@ def test_path_parameter_and_points():
     t = path.tangent_at([0, 1], [0.5, 0.5])
     np.testing.assert_allclose(t[0], [1, 0, 0])
     np.testing.assert_allclose(t[1], np.array([0, -5 * math.pi, -2]) / math.hypot(5 * math.pi, 2), atol=1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
+# the compiled search against the numpy path
+# ---------------------------------------------------------------------------------------------
+
+
+def _both_paths(monkeypatch, path, pts, hint, **kw):
+    import ilcnc.contour as contour_mod
+
+    monkeypatch.setattr(contour_mod, "_USE_KERNEL", False)
+    ref = contour_error(path, pts, hint, **kw)
+    monkeypatch.setattr(contour_mod, "_USE_KERNEL", True)
+    return ref, contour_error(path, pts, hint, **kw)
+
+
+def _assert_same_error(a, b) -> None:
+    for name in ("dist_mm", "foot_mm", "vector_mm", "u", "signed_mm", "seg", "hint"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype and x.shape == y.shape and x.flags.f_contiguous == y.flags.f_contiguous, name
+        np.testing.assert_array_equal(x, y, err_msg=name)
+    assert a.walked == b.walked
+
+
+@pytest.mark.parametrize("lag", [0.0, 0.4, -0.4])
+def test_compiled_search_equals_numpy_path_on_arcs_and_walks(monkeypatch, lag):
+    # spirals, helices and lines of a CAM program; hints off by up to 0.4 mm of path so that the walk runs
+    prog = read_program(CONTOUR / "Gates_combined_R12.nc")
+    path = PathGeometry.from_moves(prog.moves)
+    rng = np.random.default_rng(11)
+    pts = _points_near(path, 20000, rng, max_off=0.05)
+    full = _exhaustive(path, pts[:2000])
+    length = np.where(path.active, path.length_mm, 0.0)
+    cum = np.concatenate([[0.0], np.cumsum(length)])
+    s = cum[full.seg] + (full.u - full.seg) * length[full.seg]
+    hint = np.clip(np.searchsorted(cum, s + lag, side="right") - 1, 0, len(path) - 1)
+    pts = pts[:2000]
+    pts[7] = np.nan  # a NaN sample: no foot
+    for w in (0, 2, 3):
+        a, b = _both_paths(monkeypatch, path, pts, hint, window=w, chunk=1024)
+        _assert_same_error(a, b)
+    assert (b.walked > 0) == (lag != 0.0) and np.isnan(b.dist_mm[7]) and b.seg[7] == -1
+
+
+def test_compiled_search_equals_numpy_path_on_helices_and_planes(monkeypatch):
+    b = MoveTableBuilder()
+    b.add(MOVE_ARC_CW, 1, (3.0, 2.0, 3.0), (3.0, -1.0, 3.0), center=(1.0, 2.0, 3.0), plane=18, turns=3)  # multi-turn
+    b.add(MOVE_LINE, 2, (3.0, -1.0, 3.0), (5.0, -1.0, 4.0))
+    b.add(MOVE_ARC_CCW, 3, (5.0, -1.0, 4.0), (5.0, 1.0, 4.5), center=(5.0, 0.0, 4.0), plane=19)  # helix in G19
+    b.add(MOVE_RAPID, 4, (5.0, 1.0, 4.5), (9.0, 1.0, 9.0))
+    b.add(MOVE_LINE, 5, (9.0, 1.0, 9.0), (9.0, 4.0, 9.0))
+    path = PathGeometry.from_moves(b.build())
+    rng = np.random.default_rng(12)
+    seg = rng.integers(0, len(path), 5000)
+    pts = path.point_at(seg, rng.random(5000)) + rng.normal(size=(5000, 3)) * 0.3
+    for w in (0, 1, 3):
+        a, c = _both_paths(monkeypatch, path, pts, seg, window=w)
+        _assert_same_error(a, c)

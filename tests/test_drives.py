@@ -545,3 +545,31 @@ def _phase_margin(drive: PFfFrictionDrive) -> float:
 def test_filter_deviation_of_zero_is_zero() -> None:
     m = discrete_model(SEED000_X, T)
     assert np.array_equal(filter_deviation(m, np.zeros(10)), np.zeros(10))
+
+
+# -- the compiled one-pass simulation of simulate_drives ----------------------------------
+
+
+@pytest.mark.parametrize("drive", [SEED004, dataclasses.replace(SEED004, position_gain_1_s=40.0), SEED000_X, SEED003_G1, PFF,
+                                   FirstOrderDelayDrive(time_constant_s=0.02, delay_s=0.0035),
+                                   dataclasses.replace(PFF, coulomb_n=100.0, static_n=130.0, stribeck_velocity_mm_s=1.0)],
+                         ids=["sopdt", "sopdt_p", "pid", "tf_unity", "pff", "fo_delay", "pff_friction"])
+def test_one_pass_columns_equal_axis_response(drive: object, monkeypatch: pytest.MonkeyPatch) -> None:
+    # simulate_drives writes each column in one compiled pass (deflated filter or friction loop fed from the
+    # reference), the axes in threads; axis_response is the whole-array path (lfilter / _run_loop): the same
+    # numbers, bit for bit
+    monkeypatch.setattr(drives, "_PARALLEL_SAMPLES", 0)
+    ref = _circle(20.0, 2.5, 1.2) + np.array([100.0, -50.0])
+    ref = np.column_stack([ref, np.linspace(3.0, -2.0, ref.shape[0])])
+    base = default_profile()
+    prof = dataclasses.replace(base, axes={k: dataclasses.replace(a, drive=drive) for k, a in base.axes.items()})
+    out = simulate_drives(ref, prof)
+    for col in range(3):
+        np.testing.assert_array_equal(out[:, col], axis_response(drive, ref[:, col], prof.machine.servo_period_s))
+
+
+def test_one_pass_filter_refuses_non_finite_reference() -> None:
+    ref = np.zeros((10, 3))
+    ref[5, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        simulate_drives(ref, default_profile())

@@ -116,3 +116,66 @@ def test_cubic_profile_has_continuous_jerk() -> None:
     assert np.max(np.abs(np.diff(j7))) > 0.9 * 20000
     assert np.max(np.abs(np.diff(jc))) < 0.25 * 20000
     assert cubic.duration_s == pytest.approx(seven.duration_s + 0.01, abs=0.003)
+
+
+# -- the compiled planner against the numpy path -------------------------------------------
+
+
+def _numpy_plan(moves, limits: PlanLimits, **kw):
+    from ilcnc import plan
+
+    args = dict(period_s=0.001, mode="seven_phase", corner_tolerance_mm=0.01, jerk_time_constant_s=0.01,
+                in_position_s=plan.IN_POSITION_S, max_passes=12)
+    args.update(kw)
+    return plan._plan(moves, limits, args["period_s"], args["mode"], args["corner_tolerance_mm"],
+                      args["jerk_time_constant_s"], args["in_position_s"], args["max_passes"], kernel=False)
+
+
+def _assert_same_reference(a, b) -> None:
+    assert a.pos_mm.shape == b.pos_mm.shape and a.pos_mm.dtype == b.pos_mm.dtype == np.float64
+    np.testing.assert_array_equal(a.pos_mm, b.pos_mm)
+    for name in ("move", "command", "line"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype == np.int32
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(a.move_speed_mm_s, b.move_speed_mm_s)
+
+
+@pytest.mark.parametrize("text", [
+    "G21 G90\nG0 X0 Y0 Z0\nG1 X5 F3000\nX4\nX5\nX4.5\nY1\nM2\n",  # reversals: limits hit, groups planned again
+    "G21 G90\nG0 X0 Y0 Z0\nG1 X5 F3000\nY0.2\nX0\nY0.4\nX5\nY0.6\nX0\nG0 Z5\nX20\nG1 Z0 F600\nX25\nM2\n",
+    "G21 G90 G17\nG0 X25 Y0 Z0\nG2 X25 Y0 Z-2 I-25 J0 P2 F3000\nG18 G3 X35 Z-2 I5 K0\nG19 G2 Y5 Z3 J2.5 K2.5\nM2\n",
+])
+@pytest.mark.parametrize("mode", ["seven_phase", "cubic", "constant_feed"])
+@pytest.mark.parametrize("tol", [0.0, 0.01, 0.5])
+def test_compiled_planner_equals_numpy_path(text: str, mode: str, tol: float) -> None:
+    moves = _prog(text).moves
+    kw = dict(period_s=0.001, mode=mode, corner_tolerance_mm=tol, jerk_time_constant_s=0.01)
+    _assert_same_reference(plan_moves(moves, _limits(), **kw), _numpy_plan(moves, _limits(), **kw))
+
+
+@pytest.mark.parametrize("name", ["contour/Gates_combined_R12.nc", "gcode/arcspiral.ngc", "gcode/cds.ngc"])
+def test_compiled_planner_equals_numpy_path_on_real_programs(name: str) -> None:
+    prog = read_program(SAMPLES / name)
+    lim = PlanLimits.from_profile(PROFILE)
+    kw = dict(period_s=PROFILE.machine.servo_period_s, corner_tolerance_mm=PROFILE.planner.corner_tolerance_mm)
+    _assert_same_reference(plan_program(prog, PROFILE), _numpy_plan(prog.moves, lim, **kw))
+
+
+def test_position_array_grows_when_replanning_outgrows_its_estimate(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the array is sized from the speeds before re-planning; without slack a slower re-plan must grow it
+    from ilcnc import plan
+
+    moves = _prog("G21 G90\nG0 X0 Y0 Z0\nG1 X5 F3000\nX4\nX5\nX4.5\nY1\nG0 Z5\nG1 Z0 F300\nM2\n").moves
+    ref = plan_moves(moves, _limits(), period_s=0.001)
+    reserve = plan._reserve
+    grown = []
+
+    def spy(buf, size):
+        grown.append(size > buf.shape[0])
+        return reserve(buf, size)
+
+    monkeypatch.setattr(plan, "_SLACK_ROWS", 0)
+    monkeypatch.setattr(plan, "_reserve", spy)
+    _assert_same_reference(plan_moves(moves, _limits(), period_s=0.001), ref)
+    assert any(grown)

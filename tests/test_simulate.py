@@ -120,3 +120,25 @@ def test_program_beyond_travel_is_refused(tmp_path: Path) -> None:
     r = _cli("simulate", str(OWN / "square.ngc"), "--profile", str(prof))
     assert r.returncode == 1
     assert "square.ngc:5:" in r.stderr and "outside the machine travel" in r.stderr
+
+
+def test_feed_stats_equal_the_nan_reductions() -> None:
+    # one pass for the mask and the statistics: np.nanmax / nanargmax exactly, np.nanmean to a few ulp
+    from ilcnc.simulate import _feed_stats
+
+    rng = np.random.default_rng(3)
+    n = 100_003
+    move = rng.integers(-1, 50, n).astype(np.int32)
+    rapid = rng.random(50) < 0.2
+    dist = rng.random(n) * 1e-2
+    dist[rng.random(n) < 0.01] = np.nan
+    feed, stats, worst = _feed_stats(move, rapid, dist)
+    ref_feed = (move >= 0) & ~rapid[np.maximum(move, 0)]
+    np.testing.assert_array_equal(feed, ref_feed)
+    d = np.where(ref_feed & np.isfinite(dist), dist, np.nan)
+    assert worst == int(np.nanargmax(d))
+    assert stats["max"] == float(np.nanmax(d))
+    assert stats["mean"] == pytest.approx(float(np.nanmean(d)), rel=1e-14)
+    assert stats["rms"] == pytest.approx(float(np.sqrt(np.nanmean(d * d))), rel=1e-14)
+    none = _feed_stats(move, np.ones(50, bool), dist)
+    assert none[1] == {"max": 0.0, "mean": 0.0, "rms": 0.0} and none[2] == -1

@@ -20,14 +20,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-try:  # pragma: no cover - exercised where numba is installed (a runtime dependency)
-    from numba import njit
-except ImportError:  # pragma: no cover
-    njit = None
+from ilcnc._jit import HAVE_NUMBA, njit
 
 __all__ = ["AVAILABLE", "scan_plain_blocks"]
 
-AVAILABLE = njit is not None
+AVAILABLE = HAVE_NUMBA
 
 _POW10 = np.array([10.0**i for i in range(23)])
 

@@ -1,0 +1,31 @@
+"""The one place that imports numba.
+
+numba is a runtime dependency; when it is missing (a stripped install) :func:`njit`
+leaves a function as plain Python, sets ``py_func`` like numba does, and
+:data:`HAVE_NUMBA` tells the callers to take their numpy paths instead.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+__all__ = ["HAVE_NUMBA", "njit"]
+
+try:  # pragma: no cover - exercised by the environment, not by a test
+    from numba import njit
+
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - the numpy paths do the same work
+    HAVE_NUMBA = False
+
+    def njit(*args: Any, **kwargs: Any) -> Any:  # type: ignore[no-redef]
+        """Stand-in for :func:`numba.njit`: the function stays Python."""
+
+        def wrap(f: Callable[..., Any]) -> Callable[..., Any]:
+            f.py_func = f  # type: ignore[attr-defined]
+            return f
+
+        if args and callable(args[0]):
+            return wrap(args[0])
+        return wrap
