@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ilcnc._jit import HAVE_NUMBA, njit
 from ilcnc.profile import MachineProfile
 from ilcnc.program.model import Program
 
@@ -94,7 +95,7 @@ def command_signal_from_run(
     path: Any,
     err: Any,
     actual_mm: NDArray[np.float64],
-    t_s: NDArray[np.float64],
+    t_s: NDArray[np.float64] | float,
     command_sample: NDArray[np.float64] | None = None,
     ref_mm: NDArray[np.float64] | None = None,
     gate_mm: float | None = None,
@@ -114,8 +115,9 @@ def command_signal_from_run(
         Exact contour error of every sample against ``path``.
     actual_mm : ndarray (N, 3)
         Actual positions, mm.
-    t_s : ndarray (N,)
-        Sample times, s.
+    t_s : ndarray (N,) or float
+        Sample times, s; or the period, s, of uniform samples from t = 0
+        (not for ``crossing``).
     command_sample : ndarray (K,), optional
         Sample at which the reference reaches the end of each command
         (needed by the time-indexed estimates).
@@ -145,7 +147,8 @@ def command_signal_from_run(
     if kind == "crossing":
         if sample_move is None:
             raise ValueError("error estimate 'crossing' needs the move each sample's reference is on")
-        e, t = plane_crossings(path, actual_mm, t_s, sample_move, max_lag_s=max_lag_s)
+        ts = np.arange(actual_mm.shape[0]) * t_s if np.ndim(t_s) == 0 else t_s
+        e, t = plane_crossings(path, actual_mm, ts, sample_move, max_lag_s=max_lag_s)
         e[np.linalg.norm(np.nan_to_num(e, nan=np.inf), axis=1) > gate] = np.nan
         return _finish_signal(e, t, kind)
     if command_sample is None:
@@ -169,14 +172,14 @@ def command_signal_from_run(
     e[ok] = v[ok]
     e[~np.isfinite(e)] = np.nan
     e[np.linalg.norm(np.nan_to_num(e, nan=np.inf), axis=1) > gate] = np.nan
-    t = np.where(ok, np.asarray(t_s)[idx], np.nan)
+    t = np.where(ok, idx * t_s if np.ndim(t_s) == 0 else np.asarray(t_s)[idx], np.nan)
     return _finish_signal(e, t, kind)
 
 
 def path_weighted_error(
     path: Any,
     err: Any,
-    t_s: NDArray[np.float64],
+    t_s: NDArray[np.float64] | float,
     *,
     on_feed: NDArray[np.bool_] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -194,6 +197,18 @@ def path_weighted_error(
     which is right: moving that point would tilt both segments over their
     whole length.
 
+    Parameters
+    ----------
+    path : PathGeometry
+        The original programmed path.
+    err : ContourError
+        Contour error of every sample against ``path``.
+    t_s : ndarray (N,) or float
+        Sample times, s; or the sample period, s, when the samples are
+        uniform from t = 0 (a virtual-CNC run: no N-long time array is made).
+    on_feed : ndarray (N,) bool, optional
+        Samples that count (the machine executes a feed move).
+
     Returns
     -------
     e_mm : ndarray (K, 3)
@@ -202,38 +217,97 @@ def path_weighted_error(
         Weighted mean time, s.
     """
     kk = path.n_commands
-    seg = np.asarray(err.seg, dtype=np.int64)
-    ok = (seg >= 0) & np.isfinite(err.dist_mm)
-    if on_feed is not None:
-        ok &= np.asarray(on_feed, dtype=bool)
-    cmd = np.asarray(path.command, dtype=np.int64)
     e = np.full((kk, 3), np.nan)
     t = np.full(kk, np.nan)
-    if not ok.any() or kk == 0:
+    n = len(err.dist_mm)
+    if kk == 0 or n == 0:
         return e, t
-    s = seg[ok]
-    f = np.clip(np.asarray(err.u)[ok] - s, 0.0, 1.0)
-    v = np.asarray(err.vector_mm)[ok]
-    ts = np.asarray(t_s, dtype=np.float64)[ok]
-    k_end = cmd[s]
-    prev = np.maximum(s - 1, 0)
-    k_start = np.where(s > 0, cmd[prev], -1)
-    # the previous move's end is this move's start only if they join (no gap in the table)
-    joined = np.all(np.abs(path.end_mm[prev] - path.start_mm[s]) <= 1e-9, axis=1)
-    k_start = np.where(joined, k_start, -1)
-    idx = np.concatenate([k_end, k_start])
+    cmd = np.asarray(path.command, dtype=np.int64)
+    nseg = cmd.size
+    # the command whose end point starts each move; -1 for the first move, and where the previous
+    # move's end is not this move's start (a gap in the table)
+    k_start = np.full(nseg, -1, dtype=np.int64)
+    if nseg > 1:
+        joined = np.all(np.abs(path.end_mm[:-1] - path.start_mm[1:]) <= 1e-9, axis=1)
+        k_start[1:] = np.where(joined, cmd[:-1], -1)
+    feed = np.ones(1, dtype=np.bool_) if on_feed is None else np.asarray(on_feed, dtype=np.bool_)
+    if np.ndim(t_s) == 0:
+        period, times = float(t_s), np.zeros(1)
+    else:
+        period, times = -1.0, np.ascontiguousarray(t_s, dtype=np.float64)
+    num = np.zeros((kk, 3))
+    den = np.zeros(kk)
+    tnum = np.zeros(kk)
+    args = (np.asarray(err.seg, dtype=np.int64), np.asarray(err.u, dtype=np.float64),
+            np.asarray(err.vector_mm, dtype=np.float64), np.asarray(err.dist_mm, dtype=np.float64),
+            feed, on_feed is not None, times, period, cmd, k_start, num, den, tnum)
+    if HAVE_NUMBA:
+        _path_weighted_kernel_jit()(*args)
+    else:  # pragma: no cover - numba is a runtime dependency
+        _path_weighted_numpy(*args)
+    has = den > 0
+    e[has] = num[has] / den[has, None]
+    t[has] = tnum[has] / den[has]
+    return e, t
+
+
+def _path_weighted_numpy(seg, u, vec, dist, feed, use_feed, times, period, cmd, k_start, num, den, tnum):
+    """Numpy form of :func:`_path_weighted_kernel` (the reference of its test; memory: several N-long temporaries)."""
+    ok = (seg >= 0) & np.isfinite(dist)
+    if use_feed:
+        ok &= feed
+    idx_s = np.flatnonzero(ok)
+    s = seg[idx_s]
+    f = np.clip(u[idx_s] - s, 0.0, 1.0)
+    ts = idx_s * period if period >= 0 else times[idx_s]
+    idx = np.concatenate([cmd[s], k_start[s]])
     w = np.concatenate([f, 1.0 - f])
     sel = (idx >= 0) & (w > 0)
     idx, w = idx[sel], w[sel]
-    vv = np.concatenate([v, v])[sel]
-    tt = np.concatenate([ts, ts])[sel]
-    den = np.bincount(idx, weights=w, minlength=kk)
-    has = den > 0
+    kk = den.size
+    vv = np.concatenate([vec[idx_s], vec[idx_s]])[sel]
+    den += np.bincount(idx, weights=w, minlength=kk)
     for a in range(3):
-        num = np.bincount(idx, weights=w * vv[:, a], minlength=kk)
-        e[has, a] = num[has] / den[has]
-    t[has] = np.bincount(idx, weights=w * tt, minlength=kk)[has] / den[has]
-    return e, t
+        num[:, a] += np.bincount(idx, weights=w * vv[:, a], minlength=kk)
+    tnum += np.bincount(idx, weights=w * np.concatenate([ts, ts])[sel], minlength=kk)
+
+
+def _path_weighted_kernel(  # pragma: no cover - compiled
+    seg, u, vec, dist, feed, use_feed, times, period, cmd, k_start, num, den, tnum
+):
+    """One pass over the samples, accumulating the hat-weighted sums per command (memory O(K), not O(N))."""
+    for i in range(seg.shape[0]):
+        s = seg[i]
+        if s < 0 or not np.isfinite(dist[i]):
+            continue
+        if use_feed and not feed[i]:
+            continue
+        f = u[i] - s
+        if f < 0.0:
+            f = 0.0
+        elif f > 1.0:
+            f = 1.0
+        ti = i * period if period >= 0.0 else times[i]
+        k = cmd[s]
+        if k >= 0 and f > 0.0:
+            den[k] += f
+            tnum[k] += f * ti
+            for a in range(3):
+                num[k, a] += f * vec[i, a]
+        k = k_start[s]
+        g = 1.0 - f
+        if k >= 0 and g > 0.0:
+            den[k] += g
+            tnum[k] += g * ti
+            for a in range(3):
+                num[k, a] += g * vec[i, a]
+
+
+def _path_weighted_kernel_jit() -> Any:
+    k = _KERNELS.get("path_weighted")
+    if k is None:
+        k = _KERNELS["path_weighted"] = njit(cache=True, nogil=True)(_path_weighted_kernel)
+    return k
 
 
 def plane_crossings(
@@ -271,7 +345,6 @@ def plane_crossings(
     t_s : ndarray (K,)
         Time of the closest approach, s (NaN: never reached).
     """
-    from ilcnc._jit import njit  # numba, or plain Python when it is missing
 
     q = np.ascontiguousarray(np.nan_to_num(np.asarray(actual_mm, dtype=np.float64)))
     if q.shape[1] == 2:
@@ -439,7 +512,9 @@ def signal_of_simulation(sim: Any, original: Program, kind: str, gate_mm: float 
     cs = None
     if kind not in ("crossing", "path"):
         cs = reference_command_samples(ref.move, original.command_moves)
-    return command_signal_from_run(kind, path=path, err=sim.error, actual_mm=sim.actual_mm, t_s=ref.t_s,
+    # uniform samples from t = 0: the period stands for the N-long time array (only ``crossing`` needs it)
+    t_s = ref.t_s if kind == "crossing" else ref.period_s
+    return command_signal_from_run(kind, path=path, err=sim.error, actual_mm=sim.actual_mm, t_s=t_s,
                                    command_sample=cs, ref_mm=ref.pos_mm, gate_mm=gate_mm, sample_move=ref.move,
                                    on_feed=sim.feed_mask)
 

@@ -621,15 +621,17 @@ def learn_virtual(
                                sim0 if keep_runs else None, tim0)]
     if on_record:
         on_record(records[0])
+    stats0 = records[0].stats
+    del sim0  # one run held at a time: a large program's run is several GB
     u_hist = [u0]
     s_hist = [sig0]
     best = 0
     scale = 1.0
     halved = False
     status, message = "max_iterations", f"ran {n_iter} iterations"
-    if sim0.stats["max"] <= profile.learning.stop_tolerance_mm:
+    if stats0["max"] <= profile.learning.stop_tolerance_mm:
         return LearnResult(program, records, "converged",
-                           f"max contour error {sim0.stats['max'] * 1e3:.2f} µm is already within the stop tolerance",
+                           f"max contour error {stats0['max'] * 1e3:.2f} µm is already within the stop tolerance",
                            0, frozen)
     if k == 0 or not sig0.valid.any():
         return LearnResult(program, records, "stopped", "the program has no G01 command to correct", 0, frozen)
@@ -647,15 +649,17 @@ def learn_virtual(
         sim, sig, tim = run(prog, it)
         tim["law"] = t_law
         tim["write"] = t_write
+        stats = dict(sim.stats)
         ref_stats = best_stats([r.stats for r in records if r.kept])
-        worse = grew(sim.stats, ref_stats, resolution_mm=profile.machine.resolution_mm) if guard else []
-        rec = IterationRecord(first_iteration + it, dict(sim.stats), u_new, sig, clips, not worse, scale, text,
+        worse = grew(stats, ref_stats, resolution_mm=profile.machine.resolution_mm) if guard else []
+        rec = IterationRecord(first_iteration + it, stats, u_new, sig, clips, not worse, scale, text,
                               sim if keep_runs else None, tim)
+        del sim, prog  # one run held at a time: a large program's run is several GB
         records.append(rec)
         if on_record:
             on_record(rec)
         if worse:
-            what = " and ".join(f"{w.upper()} {ref_stats[w] * 1e3:.2f} → {sim.stats[w] * 1e3:.2f} µm" for w in worse)
+            what = " and ".join(f"{w.upper()} {ref_stats[w] * 1e3:.2f} → {stats[w] * 1e3:.2f} µm" for w in worse)
             if halved:
                 status = "diverged"
                 message = f"iteration {rec.iteration} made the error worse again ({what}) with the gain halved: stopped"
@@ -667,15 +671,15 @@ def learn_virtual(
         best = len(records) - 1
         u_hist.append(u_new)
         s_hist.append(sig)
-        if sim.stats["max"] <= profile.learning.stop_tolerance_mm:
+        if stats["max"] <= profile.learning.stop_tolerance_mm:
             status = "converged"
-            message = (f"max contour error {sim.stats['max'] * 1e3:.3f} µm is within the stop tolerance "
+            message = (f"max contour error {stats['max'] * 1e3:.3f} µm is within the stop tolerance "
                        f"{profile.learning.stop_tolerance_mm * 1e3:g} µm after iteration {rec.iteration}")
             break
-        if stop_on_stall and prev_rms - sim.stats["rms"] < STALL_REL * prev_rms:
+        if stop_on_stall and prev_rms - stats["rms"] < STALL_REL * prev_rms:
             status = "stopped"
             message = (f"iteration {rec.iteration} improved the RMS contour error by less than {STALL_REL:.0%} "
-                       f"({prev_rms * 1e3:.3f} → {sim.stats['rms'] * 1e3:.3f} µm): stopped")
+                       f"({prev_rms * 1e3:.3f} → {stats['rms'] * 1e3:.3f} µm): stopped")
             break
     # the output: the kept iteration with the lowest RMS error (a kept iteration may be a hair
     # worse than the one before, within the resolution); unguarded runs keep every iteration

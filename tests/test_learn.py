@@ -193,6 +193,33 @@ def test_path_weighted_error_of_a_uniform_offset() -> None:
     assert t[0] == pytest.approx(1.0, abs=0.05)
 
 
+def test_path_weighted_kernel_matches_its_numpy_form_on_a_cam_program() -> None:
+    """The compiled one-pass accumulation gives the numpy bincount form's E(k) (summation order aside)."""
+    from ilcnc import command_error as ce
+    from ilcnc.simulate import simulate_program
+
+    prof = load_profile(CONFIGS / "seed004-ward-sopdt.yaml")
+    prog = read_program(JSDC)
+    sim = simulate_program(prog, prof)
+    path, err = sim.error.path, sim.error
+    e_k, t_k = path_weighted_error(path, err, sim.reference.period_s, on_feed=sim.feed_mask)
+    e_a, t_a = path_weighted_error(path, err, sim.reference.t_s, on_feed=sim.feed_mask)
+    assert np.array_equal(np.isnan(e_k), np.isnan(e_a)) and np.nanmax(np.abs(e_k - e_a)) < 1e-15
+    assert np.nanmax(np.abs(t_k - t_a)) < 1e-9
+    kk = path.n_commands
+    num, den, tnum = np.zeros((kk, 3)), np.zeros(kk), np.zeros(kk)
+    cmd = np.asarray(path.command, dtype=np.int64)
+    joined = np.all(np.abs(path.end_mm[:-1] - path.start_mm[1:]) <= 1e-9, axis=1)
+    k_start = np.concatenate([[-1], np.where(joined, cmd[:-1], -1)]).astype(np.int64)
+    ce._path_weighted_numpy(np.asarray(err.seg, dtype=np.int64), err.u, err.vector_mm, err.dist_mm,
+                            sim.feed_mask, True, np.zeros(1), sim.reference.period_s, cmd, k_start, num, den, tnum)
+    has = den > 0
+    assert has.sum() > 0.9 * prog.n_commands
+    assert np.allclose(e_k[has], num[has] / den[has, None], rtol=1e-9, atol=1e-15)
+    assert np.allclose(t_k[has], tnum[has] / den[has], rtol=1e-12)
+    assert np.isnan(e_k[~has]).all()
+
+
 def test_crossing_is_the_closest_approach_to_the_corner() -> None:
     # an L corner rounded by the machine: the closest point to the vertex is on the bisector
     path = PathGeometry.from_polyline([[0, 0, 0], [10, 0, 0], [10, 10, 0]])
