@@ -63,3 +63,7 @@ class StateError(InputError):
 
 class LogError(InputError):
     """A measured log or probe file that does not belong to the program it claims."""
+
+
+class MapError(InputError):
+    """A volumetric error map, a tool FRF or a stock (OMI) file that cannot be used."""

@@ -215,6 +215,7 @@ _TF = (f"{_DRIVE}.model", "transfer_function")
 _LAW_P = ("learning.law", "p")
 _LAW_PID = ("learning.law", "pid_ace")
 _LAW_SO = ("learning.law", "second_order")
+_CUT_M = ("cutting.model", "mechanistic")
 
 #: The profile schema: every key, in file order.
 SPECS: tuple[Spec, ...] = (
@@ -663,6 +664,76 @@ SPECS: tuple[Spec, ...] = (
         kind="int",
         default_doc="from resolution_mm",
     ),
+    # geometry, tool, cutting (issue 8) ----------------------------------------
+    _sec("geometry", "Geometric (volumetric) errors of the machine added to the actual tool position (seed 002)."),
+    Spec(
+        "geometry.map",
+        "str",
+        "Volumetric error map: a grid CSV x,y,z,dx,dy,dz or per-axis error tables (docs/geometry.md); a path"
+        " relative to the profile file. Absent: no geometric error.",
+        default=None,
+    ),
+    _c(
+        "geometry.outside",
+        "A point outside the map: error (refuse the run) or extrapolate (linear, from the map's edge).",
+        ("error", "extrapolate"),
+        default="error",
+    ),
+    _sec("tool", "The cutting tool: size and its frequency response at the tool tip (seed 004's SLE model)."),
+    _f("tool.diameter_mm", "Tool diameter.", "mm", 0, 200, lo_open=True, default=12.0),
+    _f("tool.teeth", "Number of teeth (flutes), straight flutes.", "", 1, 20, default=2, kind="int"),
+    Spec(
+        "tool.modes",
+        "modes",
+        "Modes of the tool-tip receptance: a list of {direction: feed|normal, natural_frequency_hz,"
+        " damping_ratio, stiffness_n_um}; normal is perpendicular to the wall being cut.",
+        default=None,
+    ),
+    Spec(
+        "tool.frf_csv",
+        "str",
+        "Measured tool-tip FRF from an impact test instead of modes: CSV f_hz,re_normal,im_normal[,re_feed,im_feed]"
+        " (m/N unless the header says [um/N]); a path relative to the profile file.",
+        default=None,
+    ),
+    _sec("cutting", "Cutting conditions of the surface location error (SLE) model; model none switches it off."),
+    _c(
+        "cutting.model",
+        "none: no cutting error; mechanistic: straight-flute milling forces on the tool's FRF give the SLE.",
+        ("none", "mechanistic"),
+        default="none",
+    ),
+    _f("cutting.ktc_n_mm2", "Tangential cutting coefficient K_tc.", "N/mm²", 0, 1e5, lo_open=True, when=_CUT_M),
+    _f("cutting.krc_n_mm2", "Radial cutting coefficient K_rc.", "N/mm²", 0, 1e5, when=_CUT_M),
+    _f("cutting.kte_n_mm", "Tangential edge coefficient K_te.", "N/mm", 0, 1e4, default=0.0, when=_CUT_M),
+    _f("cutting.kre_n_mm", "Radial edge coefficient K_re.", "N/mm", 0, 1e4, default=0.0, when=_CUT_M),
+    _f("cutting.axial_depth_mm", "Axial depth of cut.", "mm", 0, 500, lo_open=True, when=_CUT_M),
+    _f("cutting.spindle_rpm", "Spindle speed.", "rpm", 0, 2e5, lo_open=True, when=_CUT_M),
+    _c("cutting.milling", "Up (conventional) or down (climb) milling.", ("up", "down"), default="up"),
+    _c(
+        "cutting.wall",
+        "Side of the programmed path, looking along the feed, where the finished wall is.",
+        ("left", "right"),
+        default="left",
+    ),
+    Spec(
+        "cutting.stock",
+        "str",
+        "On-machine inspection of the stock: CSV x,y,z of the stock face or k,stock_mm (radial depth per"
+        " command); a path relative to the profile file. Absent: cutting.radial_depth_mm for every command.",
+        default=None,
+    ),
+    _f(
+        "cutting.radial_depth_mm",
+        "Radial depth of cut of every G01 command when no stock file is given.",
+        "mm",
+        0,
+        200,
+        lo_open=True,
+        default=None,
+        when=_CUT_M,
+        default_doc="none (needs cutting.stock)",
+    ),
 )
 
 _TOP_SECTIONS: tuple[str, ...] = tuple(s.path for s in SPECS if not s.parent)
@@ -1079,6 +1150,113 @@ class OutputSection:
     decimals: int | None = _default("output.decimals")
 
 
+_MODE_KEYS = ("direction", "natural_frequency_hz", "damping_ratio", "stiffness_n_um")
+
+
+@dataclass(frozen=True)
+class ToolMode:
+    """One mode of the tool-tip receptance.
+
+    Parameters
+    ----------
+    direction : str
+        ``"normal"`` (perpendicular to the wall being cut) or ``"feed"``.
+    natural_frequency_hz : float
+        Natural frequency, Hz.
+    damping_ratio : float
+        Viscous damping ratio.
+    stiffness_n_um : float
+        Modal stiffness, N/µm.
+    """
+
+    direction: str
+    natural_frequency_hz: float
+    damping_ratio: float
+    stiffness_n_um: float
+
+
+@dataclass(frozen=True)
+class GeometrySection:
+    """The ``geometry:`` section.
+
+    Parameters
+    ----------
+    map : str or None
+        Volumetric map file as written in the profile (see :meth:`MachineProfile.resolve`); ``None``: off.
+    outside : str
+        ``"error"`` or ``"extrapolate"``.
+    """
+
+    map: str | None = _default("geometry.map")
+    outside: str = _default("geometry.outside")
+
+
+@dataclass(frozen=True)
+class ToolSection:
+    """The ``tool:`` section.
+
+    Parameters
+    ----------
+    diameter_mm : float
+        Tool diameter, mm.
+    teeth : int
+        Number of teeth.
+    modes : tuple of ToolMode or None
+        Modal parameters of the tool tip.
+    frf_csv : str or None
+        Measured FRF file as written in the profile.
+    """
+
+    diameter_mm: float = _default("tool.diameter_mm")
+    teeth: int = _default("tool.teeth")
+    modes: tuple[ToolMode, ...] | None = _default("tool.modes")
+    frf_csv: str | None = _default("tool.frf_csv")
+
+
+@dataclass(frozen=True)
+class CuttingSection:
+    """The ``cutting:`` section (the SLE model's cutting conditions).
+
+    Parameters
+    ----------
+    model : str
+        ``"none"`` or ``"mechanistic"``.
+    ktc_n_mm2, krc_n_mm2 : float or None
+        Tangential and radial cutting coefficients, N/mm².
+    kte_n_mm, kre_n_mm : float or None
+        Edge coefficients, N/mm.
+    axial_depth_mm : float or None
+        Axial depth of cut, mm.
+    spindle_rpm : float or None
+        Spindle speed, rpm.
+    milling : str
+        ``"up"`` or ``"down"``.
+    wall : str
+        ``"left"`` or ``"right"`` of the path, looking along the feed.
+    stock : str or None
+        Stock (OMI) file as written in the profile.
+    radial_depth_mm : float or None
+        Radial depth of every command when there is no stock file, mm.
+    """
+
+    model: str = _default("cutting.model")
+    ktc_n_mm2: float | None = None
+    krc_n_mm2: float | None = None
+    kte_n_mm: float | None = None
+    kre_n_mm: float | None = None
+    axial_depth_mm: float | None = None
+    spindle_rpm: float | None = None
+    milling: str = _default("cutting.milling")
+    wall: str = _default("cutting.wall")
+    stock: str | None = _default("cutting.stock")
+    radial_depth_mm: float | None = None
+
+    @property
+    def enabled(self) -> bool:
+        """True when the SLE model is on."""
+        return self.model != "none"
+
+
 @dataclass(frozen=True)
 class MachineProfile:
     """A validated machine profile.
@@ -1104,8 +1282,29 @@ class MachineProfile:
     planner: PlannerSection = field(default_factory=PlannerSection)
     learning: LearningSection = field(default_factory=LearningSection)
     output: OutputSection = field(default_factory=OutputSection)
+    geometry: GeometrySection = field(default_factory=GeometrySection)
+    tool: ToolSection = field(default_factory=ToolSection)
+    cutting: CuttingSection = field(default_factory=CuttingSection)
     path: Path | None = field(default=None, compare=False)
     source_text: str = field(default="", compare=False, repr=False)
+
+    def resolve(self, name: str) -> Path:
+        """Return a file named in the profile as a path: relative names are relative to the profile file.
+
+        Parameters
+        ----------
+        name : str
+            The file as written in the profile.
+
+        Returns
+        -------
+        Path
+            Absolute, or relative to the working directory when the profile was built from a dict.
+        """
+        p = Path(name).expanduser()
+        if p.is_absolute() or self.path is None:
+            return p
+        return Path(self.path).parent / p
 
     @property
     def axis_names(self) -> tuple[str, ...]:
@@ -1193,7 +1392,25 @@ class MachineProfile:
             },
             "learning": learning,
             "output": output,
+            **self._error_model_dict(),
         }
+
+    def _error_model_dict(self) -> dict[str, Any]:
+        """The geometry / tool / cutting sections as plain data (only those that differ from the defaults)."""
+        out: dict[str, Any] = {}
+        g, t, c = self.geometry, self.tool, self.cutting
+        if g != GeometrySection():
+            out["geometry"] = {k: v for k, v in (("map", g.map), ("outside", g.outside)) if v is not None}
+        if t != ToolSection():
+            tool: dict[str, Any] = {"diameter_mm": t.diameter_mm, "teeth": t.teeth}
+            if t.modes:
+                tool["modes"] = [dict(vars(m)) for m in t.modes]
+            if t.frf_csv is not None:
+                tool["frf_csv"] = t.frf_csv
+            out["tool"] = tool
+        if c != CuttingSection():
+            out["cutting"] = {k: v for k, v in vars(c).items() if v is not None}
+        return out
 
     def to_yaml(self) -> str:
         """Return :meth:`to_dict` as YAML text (comments of the source are not kept)."""
@@ -1475,6 +1692,8 @@ class _Validator:
             return (v[0], v[1])
         if kind == "coeffs":
             return self.coeffs(spec, path, v)
+        if kind == "modes":
+            return self.modes(path, v)
         raise AssertionError(kind)  # pragma: no cover
 
     def coeffs(self, spec: Spec, path: tuple[str, ...], v: Any) -> tuple[float, ...]:
@@ -1491,6 +1710,35 @@ class _Validator:
         if v[0] == 0:
             self.fail(path, f"{want}, got a leading 0")
         return tuple(float(e) for e in v)
+
+    def modes(self, path: tuple[str, ...], v: Any) -> tuple[ToolMode, ...]:
+        """Validate a list of tool modes (``tool.modes``)."""
+        want = "must be a list of 1 to 10 modes {direction, natural_frequency_hz, damping_ratio, stiffness_n_um}"
+        if not isinstance(v, (list, tuple)) or not 1 <= len(v) <= 10:
+            self.fail(path, f"{want}, got {_got(v) if not isinstance(v, (list, tuple)) else f'{len(v)} items'}")
+        out = []
+        for i, m in enumerate(v):
+            p = (*path, str(i))
+            if not isinstance(m, Mapping):
+                self.fail(p, f"{want}; item {i} is {_got(m)}", line_path=path)
+            extra = sorted(set(map(str, m)) - set(_MODE_KEYS))
+            if extra:
+                self.fail((*p, extra[0]), f"unknown key; allowed: {', '.join(_MODE_KEYS)}", line_path=p)
+            for key in _MODE_KEYS:
+                if key not in m:
+                    self.fail(p, f"mode {i} misses {key}", line_path=path)
+            if m["direction"] not in ("feed", "normal"):
+                self.fail((*p, "direction"), f"must be feed or normal, got {_got(m['direction'])}", line_path=p)
+            vals = {}
+            for key, lo, hi, unit in (("natural_frequency_hz", 0.0, 1e5, "Hz"), ("damping_ratio", 0.0, 1.0, ""),
+                                      ("stiffness_n_um", 0.0, 1e6, "N/µm")):
+                x = m[key]
+                if not _is_number(x) or not math.isfinite(x) or not lo < x < hi:
+                    self.fail((*p, key), f"must be a number > {_num(lo)} and < {_num(hi)}{' ' + unit if unit else ''},"
+                                         f" got {_got(x)}", line_path=p)
+                vals[key] = float(x)
+            out.append(ToolMode(direction=m["direction"], **vals))
+        return tuple(out)
 
     @staticmethod
     def in_range(spec: Spec, x: float) -> bool:
@@ -1540,6 +1788,17 @@ class _Validator:
 
 def _cross_checks(d: dict[str, Any], fail: _Fail) -> None:
     """Rules that involve more than one key."""
+    cut, tool = d["cutting"], d["tool"]
+    if cut["model"] != "none":
+        if cut["stock"] is None and cut["radial_depth_mm"] is None:
+            fail(("cutting", "model"), f"cutting.model {cut['model']} needs cutting.stock (an OMI file) or"
+                                       " cutting.radial_depth_mm")
+        if not tool["modes"] and tool["frf_csv"] is None:
+            fail(("cutting", "model"), f"cutting.model {cut['model']} needs the tool's frequency response:"
+                                       " tool.modes or tool.frf_csv")
+        if cut["radial_depth_mm"] is not None and cut["radial_depth_mm"] > tool["diameter_mm"]:
+            fail(("cutting", "radial_depth_mm"), f"must be <= tool.diameter_mm ({_num(tool['diameter_mm'])} mm),"
+                                                 f" got {_num(cut['radial_depth_mm'])}")
     axes = d["axes"]
     names = ", ".join(axes)
     for ax in d["machine"]["travel_mm"]:
@@ -1650,6 +1909,9 @@ def _build(d: dict[str, Any], path: Path | None, text: str) -> MachineProfile:
         planner=PlannerSection(**d["planner"]),
         learning=LearningSection(**d["learning"]),
         output=OutputSection(**d["output"]),
+        geometry=GeometrySection(**d["geometry"]),
+        tool=ToolSection(**d["tool"]),
+        cutting=CuttingSection(**d["cutting"]),
         path=path,
         source_text=text,
     )
@@ -1811,6 +2073,7 @@ def _doc_type(s: Spec) -> str:
         "range_pair": "[min, max]",
         "axis_pair": "[axis, axis]",
         "coeffs": "[number, ...]",
+        "modes": "list of modes",
     }[s.kind]
 
 
@@ -1834,7 +2097,7 @@ def schema_markdown() -> str:
             lines += [f"### {title}", "", *header]
             for s in specs:
                 desc = s.doc.replace("|", "\\|")
-                rng = s.range_text() if s.kind not in ("section", "axis_map", "str", "axis_pair", "coeffs") else ""
+                rng = s.range_text() if s.kind not in ("section", "axis_map", "str", "axis_pair", "coeffs", "modes") else ""
                 if s.kind == "coeffs":
                     rng = f"1 to {MAX_COEFFS} finite numbers, the first non-zero"
                 if s.kind == "axis_pair":

@@ -422,7 +422,7 @@ def test_empty_file(tmp_path: Path, text: str) -> None:
     msg = error_of(tmp_path, text)
     assert msg == (
         f"{tmp_path / 'mill.yaml'}:1: empty profile; expected a mapping with the sections"
-        " machine, axes, controller, planner, learning, output"
+        " machine, axes, controller, planner, learning, output, geometry, tool, cutting"
     )
 
 
@@ -431,7 +431,7 @@ def test_top_level_not_a_mapping(tmp_path: Path, text: str, got: str) -> None:
     msg = error_of(tmp_path, text)
     assert msg.endswith(
         f"mill.yaml:1: the profile must be a mapping with the sections machine, axes, controller,"
-        f" planner, learning, output, got {got}"
+        f" planner, learning, output, geometry, tool, cutting, got {got}"
     )
 
 
@@ -754,3 +754,58 @@ def test_cross_coupling_needs_position_loops(tmp_path: Path) -> None:
     assert all(has_position_loop(p.axes[a].drive) for a in ("x", "y"))
     assert not has_position_loop(FirstOrderDelayDrive(time_constant_s=0.01))
     assert not has_position_loop(TransferFunctionDrive((1.0,), (1.0, 1.0), feedback="none"))
+
+
+# ---------------------------------------------------------------------------------------------
+# geometry / tool / cutting sections (issue 8)
+# ---------------------------------------------------------------------------------------------
+
+CUTTING = """\
+tool:
+  diameter_mm: 12
+  teeth: 2
+  modes:
+    - {direction: normal, natural_frequency_hz: 1500, damping_ratio: 0.03, stiffness_n_um: 15}
+cutting:
+  model: mechanistic
+  ktc_n_mm2: 796
+  krc_n_mm2: 168
+  axial_depth_mm: 8
+  spindle_rpm: 2016
+  radial_depth_mm: 9
+"""
+
+
+def test_tool_and_cutting_sections_load_and_round_trip(tmp_path: Path) -> None:
+    p = load_profile(write(tmp_path, MINIMAL + CUTTING + "geometry:\n  map: volumetric-x.csv\n"))
+    assert p.cutting.enabled and p.cutting.milling == "up" and p.cutting.kte_n_mm == 0.0
+    assert p.tool.modes[0].stiffness_n_um == 15.0 and p.tool.modes[0].direction == "normal"
+    assert p.resolve(p.geometry.map) == tmp_path / "volumetric-x.csv"
+    assert profile_from_dict(p.to_dict(), path=p.path) == p
+    assert not load_profile(write(tmp_path, MINIMAL)).cutting.enabled
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expect"),
+    [
+        ("damping_ratio: 0.03", "damping_ratio: 1.5", r"mill\.yaml:\d+: tool\.modes\.0\.damping_ratio: must be a number > 0"
+                                                      r" and < 1, got 1\.5"),
+        ("direction: normal", "direction: up", r"tool\.modes\.0\.direction: must be feed or normal, got 'up'"),
+        ("radial_depth_mm: 9", "radial_depth_mm: 13", r"cutting\.radial_depth_mm: must be <= tool\.diameter_mm \(12 mm\),"
+                                                      r" got 13"),
+        ("  radial_depth_mm: 9\n", "", r"cutting\.model: cutting\.model mechanistic needs cutting\.stock"),
+        ("  ktc_n_mm2: 796\n", "", r"cutting\.ktc_n_mm2: missing required key"),
+    ],
+)
+def test_bad_tool_and_cutting_keys_name_the_key(tmp_path: Path, old: str, new: str, expect: str) -> None:
+    text = MINIMAL + CUTTING
+    assert old in text
+    msg = error_of(tmp_path, text.replace(old, new))
+    assert re.search(expect, msg), msg
+
+
+def test_cutting_needs_a_tool_frequency_response(tmp_path: Path) -> None:
+    text = MINIMAL + CUTTING.replace(
+        "  modes:\n    - {direction: normal, natural_frequency_hz: 1500, damping_ratio: 0.03, stiffness_n_um: 15}\n", "")
+    msg = error_of(tmp_path, text)
+    assert "needs the tool's frequency response: tool.modes or tool.frf_csv" in msg, msg
