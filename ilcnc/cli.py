@@ -188,6 +188,11 @@ def learn(
         str, typer.Option("--log-format", help="auto, ilcnc, halsampler or tncscope.")
     ] = "auto",
     log_units: Annotated[str, typer.Option("--log-units", help="Unit of the log's positions: mm or inch.")] = "mm",
+    points_reach: Annotated[
+        float | None,
+        typer.Option("--points-reach", min=0.0, help="With --points: longest path gap (mm) between measured commands"
+                     " bridged by interpolation (default: 3x their median spacing)."),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Learn corrections of the G01 end points and write the compensated program.
@@ -204,7 +209,8 @@ def learn(
     if log_units not in ("mm", "inch"):
         typer.echo(f"error: --log-units must be mm or inch, got {log_units!r}", err=True)
         raise typer.Exit(2)
-    req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units)
+    req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
+                       points_reach_mm=points_reach)
     console = _console()
     try:
         if as_json or log is not None or points is not None:

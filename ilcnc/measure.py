@@ -26,7 +26,7 @@ from ilcnc.logs import AxisLog, MeasuredPoints, moves_from_lines
 from ilcnc.profile import MachineProfile
 from ilcnc.program.model import MM_PER_INCH, MOVE_RAPID, Program
 
-__all__ = ["Measurement", "measure_log", "measure_points"]
+__all__ = ["Measurement", "interpolate_along_path", "measure_log", "measure_points"]
 
 #: Share of feed samples allowed farther than the measurement gate from the path.
 OFF_PATH_SHARE = 0.02
@@ -230,12 +230,21 @@ def command_times_s(program: Program) -> NDArray[np.float64]:
     return t_end[program.command_moves]
 
 
-def measure_points(points: MeasuredPoints, original: Program, profile: MachineProfile, *, source: str | Path) -> Measurement:
+def measure_points(
+    points: MeasuredPoints,
+    original: Program,
+    profile: MachineProfile,
+    *,
+    source: str | Path,
+    reach_mm: float | None = None,
+) -> Measurement:
     """``E(k)`` from measured points: per command index, or by the nearest command end point.
 
     The deviation ``d`` of a point is measured minus nominal, so ``E = -d``
     (DESIGN.md: seed 002's ``u + γe`` with ``e = actual - nominal`` doubles the
-    error). Commands with no measurement are left alone and reported.
+    error). Commands between measured ones take the error interpolated along
+    the path (:func:`interpolate_along_path`, within ``reach_mm``); commands
+    far from any measurement are left alone and reported.
 
     Raises
     ------
@@ -274,9 +283,11 @@ def measure_points(points: MeasuredPoints, original: Program, profile: MachinePr
             dup = np.setdiff1d(np.arange(idx.size), first)[0]
             raise LogError(src, int(points.line[dup]), f"two points measure the same command k={int(idx[dup])}")
         e[idx] = -points.dev_mm
+    measured = np.all(np.isfinite(e), axis=1)
+    e, filled, reach = interpolate_along_path(e, original, reach_mm=reach_mm)
     sig_t = command_times_s(original)
     valid = np.all(np.isfinite(e), axis=1)
-    big = valid & (np.linalg.norm(np.nan_to_num(e), axis=1) > gate)
+    big = measured & (np.linalg.norm(np.nan_to_num(e), axis=1) > gate)
     if big.any():
         k = int(np.flatnonzero(big)[0])
         raise LogError(src, None, f"the deviation measured at command k={k} (line {int(original.command_line[k])}) is"
@@ -284,6 +295,76 @@ def measure_points(points: MeasuredPoints, original: Program, profile: MachinePr
     ee = np.where(valid[:, None], e, 0.0)
     sig = CommandSignal(ee, sig_t, valid, "points")
     notes = []
+    if filled.any():
+        notes.append(f"{int(filled.sum())} commands between measured ones (at most {reach:.3g} mm of path apart)"
+                     " take the error interpolated along the path")
     if (~valid).any():
-        notes.append(f"{int((~valid).sum())} of {kk} commands have no measured point and are left as they are")
-    return Measurement("points", sig, _stats(np.linalg.norm(e[valid], axis=1)), notes=notes)
+        far = np.flatnonzero(~valid)
+        lines = ", ".join(str(int(original.command_line[k])) for k in far[:8]) + (", ..." if far.size > 8 else "")
+        notes.append(f"{far.size} of {kk} commands are far from any measured point and are left as they are"
+                     f" (lines {lines})")
+    return Measurement("points", sig, _stats(np.linalg.norm(e[measured], axis=1)), notes=notes)
+
+
+def interpolate_along_path(
+    e_mm: NDArray[np.float64], program: Program, *, reach_mm: float | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], float]:
+    """Fill the error of unmeasured commands between measured ones, linearly in path length.
+
+    A command takes a value only when it lies in the same cut (an unbroken
+    run of G01 commands: no rapid, arc or other move in between) as a
+    measured command before it and one after it, and those two are at most
+    ``reach_mm`` of path apart. Commands outside the measured span of their
+    cut, or in a gap longer than the reach, stay NaN: far from any
+    measurement, they are left alone.
+
+    Parameters
+    ----------
+    e_mm : ndarray (K, 3)
+        Error of each command, mm; NaN rows are unmeasured.
+    program : Program
+        The program the commands belong to.
+    reach_mm : float, optional
+        Longest gap of path between two measured commands that is bridged,
+        mm. Default: three times the median path distance between
+        neighbouring measured commands of a cut (a regular probing pattern is
+        bridged, a hole in it is not).
+
+    Returns
+    -------
+    e_mm : ndarray (K, 3)
+        The errors with the bridged commands filled.
+    filled : ndarray (K,) bool
+        Commands that took an interpolated value.
+    reach_mm : float
+        The reach used, mm.
+    """
+    e = np.array(e_mm, dtype=np.float64)
+    kk = e.shape[0]
+    measured = np.all(np.isfinite(e), axis=1)
+    filled = np.zeros(kk, dtype=bool)
+    if kk < 3 or measured.sum() < 2:
+        return e, filled, 0.0 if reach_mm is None else float(reach_mm)
+    ends = program.command_end_mm
+    mv = np.asarray(program.command_moves, dtype=np.int64)
+    step = np.linalg.norm(np.diff(ends, axis=0), axis=1)
+    same_cut = np.diff(mv) == 1
+    s = np.concatenate([[0.0], np.cumsum(np.where(same_cut, step, 0.0))])
+    cut = np.concatenate([[0], np.cumsum(~same_cut)])
+    mk = np.flatnonzero(measured)
+    pair = cut[mk[1:]] == cut[mk[:-1]]
+    gaps = (s[mk[1:]] - s[mk[:-1]])[pair]
+    if reach_mm is None:
+        reach_mm = 3.0 * float(np.median(gaps)) if gaps.size else 0.0
+    # for each unmeasured command: the measured command before and after it
+    after = np.searchsorted(mk, np.arange(kk))
+    lo = np.clip(after - 1, 0, mk.size - 1)
+    hi = np.clip(after, 0, mk.size - 1)
+    ka, kb = mk[lo], mk[hi]
+    ok = (~measured) & (after > 0) & (after < mk.size) & (cut[ka] == cut[kb]) & (s[kb] - s[ka] <= reach_mm + 1e-9)
+    ok &= (cut == cut[ka]) & (s[kb] > s[ka])
+    if ok.any():
+        w = ((s - s[ka]) / np.where(s[kb] > s[ka], s[kb] - s[ka], 1.0))[ok, None]
+        e[ok] = (1.0 - w) * e[ka[ok]] + w * e[kb[ok]]
+        filled[ok] = True
+    return e, filled, float(reach_mm)

@@ -111,6 +111,7 @@ class LearnRequest:
     log_format: str = "auto"
     log_units: str = "mm"
     log_period_s: float | None = None
+    points_reach_mm: float | None = None
 
 
 @dataclass(slots=True)
@@ -388,7 +389,9 @@ def _measured(req: LearnRequest, profile: MachineProfile, profile_sha: str, data
         log = read_log(req.log, fmt=req.log_format, period_s=period, units=req.log_units)
         meas = measure_log(log, ran, original, profile, kind, source=req.log, units=req.log_units)
     else:
-        meas = measure_points(read_points(req.points), original, profile, source=req.points)  # type: ignore[arg-type]
+        assert req.points is not None
+        meas = measure_points(read_points(req.points), original, profile, source=req.points,
+                              reach_mm=req.points_reach_mm)
     # the measurement of this iteration (written before the index that names it)
     entry.errors = state.write_errors(entry.iteration, meas.signal.e_mm, meas.signal.t_s, meas.signal.valid)
     entry.stats = meas.stats

@@ -163,26 +163,34 @@ def test_bad_logs_are_refused_with_the_line(tmp_path) -> None:
 
 
 def test_points_step(tmp_path) -> None:
+    from ilcnc.measure import interpolate_along_path
     from ilcnc.program import read_program
 
     prog = read_program(JSDC)
     pts = tmp_path / "probe.csv"
+    # a regular probing pattern (every 7th command) with a hole: commands 700..1399 are not measured
     k = np.arange(0, prog.n_commands, 7)
+    k = k[(k < 700) | (k >= 1400)]
     rows = ["k,dx,dy,dz"] + [f"{int(i)},0.004,-0.002,0" for i in k]
     pts.write_text("\n".join(rows) + "\n")
     data = _json("learn", JSDC, "--profile", SEED004, "--points", pts, "--state", tmp_path / "st",
                  "--out", tmp_path / "p1.gcode")
     assert data["status"] == "stepped" and data["mode"] == "points"
-    assert any("no measured point" in n for n in data["notes"])
+    assert any("interpolated along the path" in n for n in data["notes"])
+    assert any("far from any measured point" in n for n in data["notes"])
     st = LearnState.load(tmp_path / "st")
     u = st.read_corrections(st.iterations[1])
     assert np.allclose(u[k[5]], [-0.002, 0.001, 0.0], atol=1e-4)  # Γ = 0.5 against measured − nominal
-    unmeasured = np.setdiff1d(np.arange(prog.n_commands), k)
-    moved = unmeasured[np.any(u[unmeasured] != 0.0, axis=1)]
-    cm = prog.command_moves[moved]
-    # only zero-length moves follow their measured predecessor (so they stay zero-length)
-    assert np.all(np.linalg.norm(prog.moves.end_mm[cm] - prog.moves.start_mm[cm], axis=1) < 1e-9)
-    assert moved.size < 0.01 * unmeasured.size
+    # which commands the interpolation bridges: the same cut, between two measured commands, within the reach
+    e = np.full((prog.n_commands, 3), np.nan)
+    e[k] = [-0.004, 0.002, 0.0]
+    _e, filled, reach = interpolate_along_path(e, prog)
+    assert reach == pytest.approx(3 * 7 * np.median(np.linalg.norm(np.diff(prog.command_end_mm, axis=0), axis=1)), rel=1.0)
+    assert filled.sum() > 0.5 * (prog.n_commands - k.size)
+    hole = np.arange(750, 1350)
+    assert not filled[hole].any()  # far from any measured point: left alone
+    assert np.all(u[hole] == 0.0) and not np.all(u[filled] == 0.0)
+    assert np.allclose(u[filled][np.any(u[filled] != 0.0, axis=1)], [-0.002, 0.001, 0.0], atol=1e-4)
     bad = tmp_path / "bad.csv"
     bad.write_text("k,dx,dy,dz\n999999,0.001,0,0\n")
     code, msg = _run("learn", JSDC, "--profile", SEED004, "--points", bad, "--state", tmp_path / "st2",
@@ -263,3 +271,26 @@ def test_state_survives_sigkill(tmp_path) -> None:
         proc.wait()
         st = LearnState.load(sdir)
         assert st.iterations and st.iterations[0].iteration == 0
+
+
+def test_interpolation_along_the_path_is_linear_in_path_length_and_stops_at_cuts(tmp_path) -> None:
+    from ilcnc.measure import interpolate_along_path
+    from ilcnc.program import read_program
+
+    p = tmp_path / "two_cuts.ngc"
+    # cut 1: k = 0..4 along X with uneven steps; a rapid; cut 2: k = 5..7
+    p.write_text("G21 G90 G17\nG0 X0 Y0 Z0\nG1 X1 F600\nG1 X2\nG1 X5\nG1 X6\nG1 X10\n"
+                 "G0 X20\nG1 X21\nG1 X22\nG1 X23\nM2\n")
+    prog = read_program(p)
+    assert prog.n_commands == 8
+    e = np.full((8, 3), np.nan)
+    e[0] = [0.0, 0.010, 0.0]
+    e[4] = [0.0, 0.019, 0.0]
+    e[5] = [0.0, 0.001, 0.0]
+    out, filled, reach = interpolate_along_path(e, prog, reach_mm=20.0)
+    assert reach == 20.0
+    assert filled.tolist() == [False, True, True, True, False, False, False, False]
+    assert np.allclose(out[1:4, 1], [0.011, 0.014, 0.015])  # linear in path length (X 2, 5, 6 of 1..10)
+    assert np.isnan(out[6:]).all()  # after the last measured command of cut 2: left alone
+    _out, filled2, _r = interpolate_along_path(e, prog, reach_mm=5.0)  # the 9 mm gap is beyond the reach
+    assert not filled2.any()
