@@ -137,7 +137,7 @@ def _simulate_with_progress(sim_mod, prog, prof, orig, console):
     """Run the virtual CNC with a progress bar over its stages (shown on a terminal only)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    stages = ("plan", "drives", "contour")
+    stages = ("plan", "drives", "errors", "contour")
     with Progress(TextColumn("simulating: {task.description:<8}"), BarColumn(), TimeElapsedColumn(),
                   console=console, transient=True) as bar:
         task = bar.add_task("plan", total=len(stages))
@@ -162,6 +162,8 @@ def _print_simulation(result, prog, console, out: Path | None) -> None:
         t.add_row(f"contour error {key} (µm)", f"{result.stats[key] * 1e3:.2f}")
     worst = result.worst(prog)
     t.add_row("worst command", f"k={worst['k']} (line {worst['line']})")
+    for name, st in result.shares.items():
+        t.add_row(f"  {name} share rms / max (µm)", f"{st['rms'] * 1e3:.2f} / {st['max'] * 1e3:.2f}")
     if out is not None:
         t.add_row("axis log", str(out))
     console.print(t)

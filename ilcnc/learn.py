@@ -368,6 +368,9 @@ class IterationRecord:
         The run (``SimulationResult`` on the virtual CNC), for reports.
     timings_s : dict
         Wall time per stage, s.
+    shares : dict
+        Each error source's ``max`` / ``mean`` / ``rms``, mm, when geometric or
+        cutting errors are on (``SimulationResult.shares``).
     """
 
     iteration: int
@@ -380,10 +383,14 @@ class IterationRecord:
     text: str = ""
     run: Any = None
     timings_s: dict[str, float] = field(default_factory=dict)
+    shares: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        return {"iteration": self.iteration, "contour_error_mm": {k: self.stats[k] for k in ("max", "mean", "rms")},
-                "clipped": len(self.clipped), "kept": self.kept, "gain_scale": self.gain_scale}
+        out = {"iteration": self.iteration, "contour_error_mm": {k: self.stats[k] for k in ("max", "mean", "rms")},
+               "clipped": len(self.clipped), "kept": self.kept, "gain_scale": self.gain_scale}
+        if self.shares:
+            out["error_shares_mm"] = self.shares
+        return out
 
 
 @dataclass(slots=True, eq=False)
@@ -590,6 +597,7 @@ def learn_virtual(
     -------
     LearnResult
     """
+    from ilcnc.machine_errors import ErrorSources
     from ilcnc.simulate import simulate_program
 
     program.require_complete()
@@ -598,11 +606,13 @@ def learn_virtual(
     learner = Learner.for_program(program, profile, law)
     frozen = int(np.count_nonzero(~learner.shaper.correctable))
 
+    sources = ErrorSources.from_profile(profile)  # map, FRF and stock files read once for all runs
+
     def run(prog: Program, it: int) -> tuple[Any, CommandSignal, dict[str, float]]:
         if progress:
             progress(it, n_iter, "simulate")
         t0 = time.perf_counter()
-        sim = simulate_program(prog, profile, against=None if prog is program else program)
+        sim = simulate_program(prog, profile, against=None if prog is program else program, sources=sources)
         t1 = time.perf_counter()
         sig = signal_of_simulation(sim, program, kind, measurement_gate_mm(profile))
         timings = dict(sim.timings_s)
@@ -618,7 +628,7 @@ def learn_virtual(
         text0, prog0 = program.text, program
     sim0, sig0, tim0 = run(prog0, 0)
     records = [IterationRecord(first_iteration, dict(sim0.stats), u0, sig0, [], True, 1.0, text0,
-                               sim0 if keep_runs else None, tim0)]
+                               sim0 if keep_runs else None, tim0, dict(sim0.shares))]
     if on_record:
         on_record(records[0])
     stats0 = records[0].stats
@@ -653,7 +663,7 @@ def learn_virtual(
         ref_stats = best_stats([r.stats for r in records if r.kept])
         worse = grew(stats, ref_stats, resolution_mm=profile.machine.resolution_mm) if guard else []
         rec = IterationRecord(first_iteration + it, stats, u_new, sig, clips, not worse, scale, text,
-                              sim if keep_runs else None, tim)
+                              sim if keep_runs else None, tim, dict(sim.shares))
         del sim, prog  # one run held at a time: a large program's run is several GB
         records.append(rec)
         if on_record:

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from ilcnc._jit import njit
 from ilcnc.errors import InputError
 from ilcnc.logs import AxisLog
+from ilcnc.machine_errors import ErrorSources
 from ilcnc.plan import Reference, plan_program
 from ilcnc.profile import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
@@ -50,7 +51,14 @@ class SimulationResult:
     worst_sample : int
         Sample of the largest contour error (-1 when there is none).
     timings_s : dict
-        Wall time of each stage, s: ``plan``, ``drives``, ``contour``, ``stats`` (feed mask and statistics).
+        Wall time of each stage, s: ``plan``, ``drives``, ``contour``, ``stats`` (feed mask and statistics),
+        and ``errors`` when geometric or cutting errors are on.
+    shares : dict
+        With geometric or cutting errors on (:mod:`ilcnc.machine_errors`): ``max`` / ``mean`` / ``rms`` of
+        each source over the feed samples, mm: ``dynamic`` is the contour error the run would have on a
+        machine without geometric and cutting errors (for a compensated program: with the corrections
+        that compensate them), ``geometric`` and ``cutting`` the length of what each adds to the tool
+        position. Empty otherwise.
     """
 
     reference: Reference
@@ -60,6 +68,7 @@ class SimulationResult:
     stats: dict[str, float]
     worst_sample: int
     timings_s: dict[str, float] = field(default_factory=dict)
+    shares: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def cycle_time_s(self) -> float:
@@ -80,13 +89,16 @@ class SimulationResult:
         return AxisLog(ref.t_s, ref.command.astype(np.int64), ref.line.astype(np.int64), ref.pos_mm, self.actual_mm)
 
     def to_json(self, program: Program) -> dict[str, Any]:
-        return {
+        out = {
             "program": str(program.path),
             "samples": self.reference.n_samples,
             "cycle_time_s": self.cycle_time_s,
             "contour_error_mm": dict(self.stats),
             "worst": self.worst(program),
         }
+        if self.shares:
+            out["error_shares_mm"] = {k: dict(v) for k, v in self.shares.items()}
+        return out
 
 
 def simulate_program(
@@ -95,6 +107,7 @@ def simulate_program(
     *,
     against: Program | None = None,
     progress: Callable[[str], None] | None = None,
+    sources: ErrorSources | None = None,
 ) -> SimulationResult:
     """Run a program on the virtual CNC of a profile.
 
@@ -109,6 +122,9 @@ def simulate_program(
         must have the same moves, e.g. the original of a compensated program).
     progress : callable, optional
         Called with the name of each stage as it starts.
+    sources : ErrorSources, optional
+        Geometric and cutting errors to add to the drives' positions (default:
+        those the profile names, loaded here; the learning loop loads them once).
 
     Raises
     ------
@@ -141,16 +157,34 @@ def simulate_program(
         progress("drives")
     act = simulate_drives(ref.pos_mm, profile)
     timings["drives"] = time.perf_counter() - t0
+    if sources is None:
+        sources = ErrorSources.from_profile(profile)
+    path = PathGeometry.from_moves(target.moves)
+    rapid = target.moves.kind == MOVE_RAPID
+    shares: dict[str, dict[str, float]] = {}
+    if sources.enabled:
+        t0 = time.perf_counter()
+        if progress:
+            progress("errors")
+        # the dynamic share: the contour error of the drives alone
+        err_dyn = contour_error(path, act, ref.move)
+        _feed, shares["dynamic"], _w = _feed_stats(ref.move, rapid, err_dyn.dist_mm)
+        del err_dyn
+        disp = sources.displacements_mm(act, ref.command, program, target, ref.line)
+        for name, d in disp.items():
+            _feed, shares[name], _w = _feed_stats(ref.move, rapid, np.sqrt(np.einsum("ij,ij->i", d, d)))
+            act += d
+        del disp
+        timings["errors"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     if progress:
         progress("contour")
-    path = PathGeometry.from_moves(target.moves)
     err = contour_error(path, act, ref.move)  # the hint: the reference's move (clipped to >= 0 there)
     timings["contour"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    feed, stats, worst = _feed_stats(ref.move, target.moves.kind == MOVE_RAPID, err.dist_mm)
+    feed, stats, worst = _feed_stats(ref.move, rapid, err.dist_mm)
     timings["stats"] = time.perf_counter() - t0
-    return SimulationResult(ref, act, err, feed, stats, worst, timings)
+    return SimulationResult(ref, act, err, feed, stats, worst, timings, shares)
 
 
 def _feed_stats(move: NDArray[np.int32], rapid: NDArray[np.bool_], dist: NDArray[np.float64]

@@ -216,8 +216,12 @@ def _write_output(req: LearnRequest, text: str, program: Program, part_sha: str,
 
 
 def _entry_json(e: IterationEntry) -> dict[str, Any]:
-    return {"iteration": e.iteration, "contour_error_mm": e.stats, "clipped": e.clipped, "kept": e.kept,
-            "gain_scale": e.gain_scale, "program": e.program, "measured_from": (e.measured_from or {}).get("kind")}
+    out = {"iteration": e.iteration, "contour_error_mm": e.stats, "clipped": e.clipped, "kept": e.kept,
+           "gain_scale": e.gain_scale, "program": e.program, "measured_from": (e.measured_from or {}).get("kind")}
+    shares = (e.measured_from or {}).get("error_shares_mm")
+    if shares:
+        out["error_shares_mm"] = shares
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -247,6 +251,8 @@ def _record_writer(state: LearnState, program: Program) -> Callable[[IterationRe
         entry.gain_scale = rec.gain_scale
         entry.clipped = len(rec.clipped)
         entry.measured_from = {"kind": "virtual", "path": None, "sha256": None}
+        if rec.shares:
+            entry.measured_from["error_shares_mm"] = rec.shares
         state.gain_scale = min(state.gain_scale, rec.gain_scale)
         state.save()
 
