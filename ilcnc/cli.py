@@ -190,6 +190,11 @@ def learn(
         str, typer.Option("--log-format", help="auto, ilcnc, halsampler or tncscope.")
     ] = "auto",
     log_units: Annotated[str, typer.Option("--log-units", help="Unit of the log's positions: mm or inch.")] = "mm",
+    log_period: Annotated[
+        float | None,
+        typer.Option("--log-period", min=1e-6, help="Sample period of the log (s) when it has no time column"
+                     " (halsampler without -t); default: the profile's servo period."),
+    ] = None,
     points_reach: Annotated[
         float | None,
         typer.Option("--points-reach", min=0.0, help="With --points: longest path gap (mm) between measured commands"
@@ -212,7 +217,7 @@ def learn(
         typer.echo(f"error: --log-units must be mm or inch, got {log_units!r}", err=True)
         raise typer.Exit(2)
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
-                       points_reach_mm=points_reach)
+                       log_period_s=log_period, points_reach_mm=points_reach)
     console = _console()
     try:
         if as_json or log is not None or points is not None:

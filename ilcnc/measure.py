@@ -24,7 +24,7 @@ from ilcnc.command_error import CommandSignal, command_signal_from_run, measurem
 from ilcnc.errors import LogError
 from ilcnc.logs import AxisLog, MeasuredPoints, moves_from_lines
 from ilcnc.profile import MachineProfile
-from ilcnc.program.model import MM_PER_INCH, MOVE_RAPID, Program
+from ilcnc.program.model import FLAG_CUTTER_COMP, MM_PER_INCH, MOVE_RAPID, Program
 
 __all__ = ["Measurement", "interpolate_along_path", "measure_log", "measure_points"]
 
@@ -134,6 +134,12 @@ def measure_log(
     from ilcnc.plan import plan_program
 
     src = Path(source)
+    comp = np.flatnonzero((ran.moves.flags & FLAG_CUTTER_COMP) != 0)
+    if comp.size:
+        raise LogError(original.path, int(ran.moves.line[comp[0]]),
+                       "cutter radius compensation (G41/G42, RL/RR) is active here: the log records the tool centre,"
+                       " offset from the programmed contour by the tool radius; learn from a tool-centre program"
+                       " (CAM output with compensation in the computer, G40 / R0)")
     n = log.n_samples
     if n < 10:
         raise LogError(src, None, f"the log has only {n} samples")

@@ -669,7 +669,7 @@ SPECS: tuple[Spec, ...] = (
     Spec(
         "geometry.map",
         "str",
-        "Volumetric error map: a grid CSV x,y,z,dx,dy,dz or per-axis error tables (docs/geometry.md); a path"
+        "Volumetric error map: a grid CSV x,y,z,dx,dy,dz or per-axis error tables (docs/errors.md); a path"
         " relative to the profile file. Absent: no geometric error.",
         default=None,
     ),
@@ -692,8 +692,8 @@ SPECS: tuple[Spec, ...] = (
     Spec(
         "tool.frf_csv",
         "str",
-        "Measured tool-tip FRF from an impact test instead of modes: CSV f_hz,re_normal,im_normal[,re_feed,im_feed]"
-        " (m/N unless the header says [um/N]); a path relative to the profile file.",
+        "Measured tool-tip FRF normal to the wall from an impact test instead of modes: CSV f_hz,re,im (m/N unless"
+        " the header says [um/N]); a path relative to the profile file.",
         default=None,
     ),
     _sec("cutting", "Cutting conditions of the surface location error (SLE) model; model none switches it off."),

@@ -21,6 +21,7 @@ with the ``--state`` of its run it continues that run.
 from __future__ import annotations
 
 import re
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -70,12 +71,25 @@ def stamp_text(text: str, dialect: str, *, name: str, sha256: str, iteration: in
         eol = line[len(body):]
         if dialect == "heidenhain":
             lines[i] = f"{body} ; {note}{eol}"
-        elif ";" in body:
+        elif _has_semicolon_comment(body):
             lines[i] = f"{body} {note}{eol}"
         else:
             lines[i] = f"{body} ({note}){eol}"
         break
     return "\n".join(lines)
+
+
+def _has_semicolon_comment(body: str) -> bool:
+    """True when the line ends in a ``;`` comment (a ``;`` outside parentheses; one inside ``( )`` is comment text)."""
+    depth = 0
+    for ch in body:
+        if ch == "(":
+            depth += 1
+        elif ch == ")":
+            depth = max(depth - 1, 0)
+        elif ch == ";" and depth == 0:
+            return True
+    return False
 
 
 def unstamp_text(text: str) -> str:
@@ -352,6 +366,21 @@ def _diff(original: Program, text: str, clipped: NDArray[np.bool_]) -> Any:
 
 def _measured(req: LearnRequest, profile: MachineProfile, profile_sha: str, data: bytes, state: LearnState | None,
               relation: str, entry_of_prog: IterationEntry | None) -> LearnOutcome:
+    made: list[Path] = []  # the state directory made by this call (until its first measurement is accepted)
+    try:
+        return _measured_step(req, profile, profile_sha, data, state, relation, entry_of_prog, made)
+    except BaseException:
+        # a refused first measurement leaves no half-made state behind (a retry would find it "not empty")
+        for d in made:
+            if d.is_dir() and not (d / "state.json").exists():
+                for p in d.iterdir():
+                    p.unlink() if p.is_file() or p.is_symlink() else shutil.rmtree(p)
+                d.rmdir()
+        raise
+
+
+def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str, data: bytes, state: LearnState | None,
+                   relation: str, entry_of_prog: IterationEntry | None, made: list[Path]) -> LearnOutcome:
     from ilcnc.logs import read_log, read_points
     from ilcnc.measure import measure_log, measure_points
 
@@ -366,6 +395,7 @@ def _measured(req: LearnRequest, profile: MachineProfile, profile_sha: str, data
         original = read_program(req.program, default_units=profile.machine.units, data=data)
         _out_suffix_matches(original, req.out)
         state = _new_state(req.state, original, data, profile, profile_sha)
+        made.append(req.state)
         name = f"iter-000{state.part['suffix']}"
         sha = state.write_file(name, data)
         state.iterations.append(IterationEntry(0, name, sha, state.write_corrections(0, np.zeros((original.n_commands, 3)))))
@@ -493,8 +523,7 @@ def _report_measured(req: LearnRequest, state: LearnState, meas: Any, clips: lis
     for c in clips:
         clipped[c.k] = True
     return write_report(req.report, program_name=original.path.name, path_mm=_path_polyline(original), runs=runs,
-                        diff=_diff(original, text, clipped), status=state.status, best_iteration=last.iteration
-                        if last.stats is None else None)
+                        diff=_diff(original, text, clipped), status=state.status)  # best: the lowest measured kept
 
 
 # ---------------------------------------------------------------------------------------------

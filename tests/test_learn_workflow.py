@@ -294,3 +294,53 @@ def test_interpolation_along_the_path_is_linear_in_path_length_and_stops_at_cuts
     assert np.isnan(out[6:]).all()  # after the last measured command of cut 2: left alone
     _out, filled2, _r = interpolate_along_path(e, prog, reach_mm=5.0)  # the 9 mm gap is beyond the reach
     assert not filled2.any()
+
+
+def test_a_refused_first_log_leaves_no_state_and_a_retry_works(tmp_path) -> None:
+    run0 = _simulate_log(JSDC, tmp_path / "run0.csv")
+    half = tmp_path / "half.csv"
+    lines = run0.read_text().splitlines()
+    half.write_text("\n".join(lines[: len(lines) // 3]) + "\n")
+    st = tmp_path / "st"
+    code, msg = _run("learn", JSDC, "--profile", SEED004, "--log", half, "--state", st, "--out", tmp_path / "a.gcode")
+    assert code == 1 and "half.csv" in _error_line(msg)
+    assert not st.exists()  # nothing half-made
+    # the same directory, the whole log, with a report: a step is made and the report written
+    rep = tmp_path / "rep"
+    data = _json("learn", JSDC, "--profile", SEED004, "--log", run0, "--state", st, "--out", tmp_path / "a.gcode",
+                 "--report", rep)
+    assert data["status"] == "stepped" and (st / "state.json").exists()
+    assert (rep / "summary.csv").exists() or any(rep.iterdir())
+    # an existing non-empty directory that is not a state is never emptied
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "keep.txt").write_text("mine")
+    code, msg = _run("learn", JSDC, "--profile", SEED004, "--log", run0, "--state", other, "--out", tmp_path / "b.gcode")
+    assert code == 1 and "not empty" in _error_line(msg) and (other / "keep.txt").read_text() == "mine"
+
+
+def test_a_log_of_a_cutter_compensated_program_is_refused(tmp_path) -> None:
+    prog = tmp_path / "comp.ngc"
+    prog.write_text("G21 G90 G17\nG0 X0 Y0 Z1\nG1 Z0 F300\nG41 D1 G1 X10 F600\nG1 Y10\nG1 X0\nG40 G1 Y0\nM2\n")
+    log = _simulate_log(prog, tmp_path / "comp.csv")
+    code, msg = _run("learn", prog, "--profile", SEED004, "--log", log, "--state", tmp_path / "st",
+                     "--out", tmp_path / "o.ngc")
+    line = _error_line(msg)
+    assert code == 1 and "comp.ngc:4:" in line and "cutter radius compensation" in line
+    assert not (tmp_path / "st").exists()
+
+
+def test_stamp_goes_inside_the_first_comment_when_it_holds_a_semicolon(tmp_path) -> None:
+    text = "(star; sharp corners)\nG21 G90\nG1 X1 F100\nM2\n"
+    stamped = stamp_text(text, "linuxcnc", name="star.ngc", sha256="0" * 64, iteration=2)
+    first = stamped.splitlines()[0]
+    assert first.startswith("(star; sharp corners) (ilcnc: learned from star.ngc") and first.endswith(")")
+    assert unstamp_text(stamped) == text
+    semi = "G21 G90 ; metric\nM2\n"
+    assert stamp_text(semi, "linuxcnc", name="a.ngc", sha256="0" * 64, iteration=1).startswith(
+        "G21 G90 ; metric ilcnc: learned from a.ngc")
+
+
+def test_log_period_option_reads_a_halsampler_log_at_its_own_rate(tmp_path) -> None:
+    code, out = _run("learn", "--help")
+    assert code == 0 and "--log-period" in out
