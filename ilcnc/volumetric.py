@@ -730,10 +730,14 @@ def _grid_structure(p: Path, coords: NDArray[np.float64], lines: NDArray[np.int6
             f"x={axes[0][ii[0][k]]:g}, y={axes[1][ii[1][k]]:g}, z={axes[2][ii[2][k]]:g}" for k in range(len(ii[0]))
         )
         more = f" and {missing.size - 3} more" if missing.size > 3 else ""
+        # the line named: the row of the node just before the first hole in grid order (or just after it)
+        before = np.flatnonzero(flat < missing[0])
+        near = int(before[np.argmax(flat[before])]) if before.size else int(np.argmin(flat))
         raise MapError(
-            p, None,
+            p, int(lines[near]),
             f"grid has {missing.size} hole(s): no node at {nodes} mm{more} "
-            f"({' x '.join(str(s) for s in shape)} = {total} nodes expected, {flat.size} found)",
+            f"({' x '.join(str(s) for s in shape)} = {total} nodes expected, {flat.size} found; the first hole"
+            " is next to the node on this line)",
         )
     return axes, index
 

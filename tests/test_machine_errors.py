@@ -206,3 +206,66 @@ def test_seed004_stepped_cut_learned_with_gamma_half(tmp_path) -> None:
     toward_wall = np.einsum("ij,ij->i", u, n)
     cut = (np.abs(sle) > 1e-4) & (u[:, 0] != 0.0)  # the last command stays: the rapid after it has no X word
     assert cut.sum() > 100 and np.all(np.sign(toward_wall[cut]) == np.sign(sle[cut]))
+
+
+BAD_MAPS = REPO / "tests" / "data" / "volumetric"
+
+
+def _profile_with(tmp_path: Path, **sections) -> Path:
+    """The seed 004 stepped-cut profile (absolute stock path) with sections replaced, written to tmp_path."""
+    import yaml
+
+    d = load_profile(STEPPED_PROFILE).to_dict()
+    d["cutting"]["stock"] = str(OWN / "seed004_stepped_omi.csv")
+    for k, v in sections.items():
+        d[k] = v
+    p = tmp_path / "p.yaml"
+    p.write_text(yaml.safe_dump(d, sort_keys=False))
+    return p
+
+
+def _cli_error(*args) -> str:
+    res = runner.invoke(app, [str(a) for a in args])
+    assert res.exit_code == 1, res.output
+    lines = [x for x in res.output.splitlines() if x.startswith("error:")]
+    assert len(lines) == 1 and "Traceback" not in res.output, res.output
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    ("name", "where", "what"),
+    [
+        ("grid_holes.csv", "grid_holes.csv:4:", "hole"),
+        ("grid_irregular.csv", "grid_irregular.csv:9:", ""),
+        ("grid_nan.csv", "grid_nan.csv:5:", ""),
+        ("grid_units.csv", "grid_units.csv:6:", "µm"),
+    ],
+)
+def test_a_bad_map_named_by_the_profile_is_one_line_exit_1(tmp_path, name: str, where: str, what: str) -> None:
+    prof = _profile_with(tmp_path, geometry={"map": str(BAD_MAPS / name)})
+    line = _cli_error("simulate", STEPPED, "--profile", prof)
+    assert where in line and what in line, line
+
+
+def test_bad_frf_stock_and_probe_files_are_one_line_exit_1(tmp_path) -> None:
+    frf = tmp_path / "frf.csv"
+    frf.write_text("f_hz,re,im\n100,1e-7,-1e-8\n300,1e-7,-2e-8\n200,1e-7,-3e-8\n")
+    tool = load_profile(STEPPED_PROFILE).to_dict()["tool"]
+    tool.pop("modes")
+    tool["frf_csv"] = str(frf)
+    line = _cli_error("simulate", STEPPED, "--profile", _profile_with(tmp_path, tool=tool))
+    assert "frf.csv:4:" in line and "increas" in line, line
+    # a radial depth larger than the tool diameter
+    stock = tmp_path / "stock.csv"
+    stock.write_text("k,stock_mm\n0,9\n1,13\n")
+    cutting = load_profile(STEPPED_PROFILE).to_dict()["cutting"]
+    cutting["stock"] = str(stock)
+    line = _cli_error("simulate", STEPPED, "--profile", _profile_with(tmp_path, cutting=cutting))
+    assert "stock.csv:3:" in line and "diameter" in line, line
+    # probe points that match no command
+    pts = tmp_path / "probe.csv"
+    pts.write_text("x,y,z,dx,dy,dz\n27,10,-8,0.001,0,0\n150,10,-8,0.001,0,0\n")
+    line = _cli_error("learn", STEPPED, "--profile", STEPPED_PROFILE, "--points", pts, "--state", tmp_path / "st",
+                      "--out", tmp_path / "o.h")
+    assert "probe.csv:3:" in line and "from the nearest G01 end point" in line, line
+    assert not (tmp_path / "st").exists()
