@@ -284,11 +284,20 @@ def measure_points(
             i = int(far[0])
             raise LogError(src, int(points.line[i]), f"point ({xyz[i, 0]:g}, {xyz[i, 1]:g}, {xyz[i, 2]:g}) is {dist[i]:.3f} mm"
                            f" from the nearest G01 end point of {original.path.name} (more than {gate:g} mm)")
-        uniq, first = np.unique(idx, return_index=True)
+        # commands that end at the same place (a closed contour's first and last point) are one location:
+        # a point there measures all of them, and two points there measure the same place twice
+        _u, loc = np.unique(np.round(e2, 9), axis=0, return_inverse=True)
+        loc = loc.ravel()
+        uniq, first = np.unique(loc[idx], return_index=True)
         if uniq.size != idx.size:
             dup = np.setdiff1d(np.arange(idx.size), first)[0]
-            raise LogError(src, int(points.line[dup]), f"two points measure the same command k={int(idx[dup])}")
-        e[idx] = -points.dev_mm
+            raise LogError(src, int(points.line[dup]), f"two points measure the same command k={int(idx[dup])}"
+                           " (or the same place, where several commands end)")
+        order = np.argsort(loc, kind="stable")
+        starts = np.searchsorted(loc[order], loc[idx], side="left")
+        stops = np.searchsorted(loc[order], loc[idx], side="right")
+        for i in range(idx.size):
+            e[order[starts[i]:stops[i]]] = -points.dev_mm[i]
     measured = np.all(np.isfinite(e), axis=1)
     e, filled, reach = interpolate_along_path(e, original, reach_mm=reach_mm)
     sig_t = command_times_s(original)

@@ -269,3 +269,18 @@ def test_bad_frf_stock_and_probe_files_are_one_line_exit_1(tmp_path) -> None:
                       "--out", tmp_path / "o.h")
     assert "probe.csv:3:" in line and "from the nearest G01 end point" in line, line
     assert not (tmp_path / "st").exists()
+
+
+def test_the_shipped_probe_file_steps_the_circle_and_its_closing_point_counts_for_both_commands(tmp_path) -> None:
+    from ilcnc.state import LearnState
+
+    res = runner.invoke(app, ["learn", str(CIRCLE), "--profile", str(SEED002), "--points",
+                              str(OWN / "seed002_circle_probe.csv"), "--state", str(tmp_path / "st"),
+                              "--out", str(tmp_path / "c1.ngc"), "--json"])
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.output)
+    assert data["status"] == "stepped" and not data["notes"]  # every command measured
+    st = LearnState.load(tmp_path / "st")
+    u = st.read_corrections(st.iterations[1])
+    assert np.all(u[0] != 0.0) and np.array_equal(u[0], u[10])  # the first and last point: one place
+    assert u[0] == pytest.approx([0.00084, -0.00059, -0.00057], abs=1e-5)  # gamma 0.5 x (nominal - measured)
