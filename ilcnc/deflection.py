@@ -72,6 +72,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ilcnc.errors import MapError
 from ilcnc.fileio import read_bytes
+from ilcnc.logs import _decode_text, _norm_unit  # the readers of every CSV ilcnc takes
 from ilcnc.program.model import Program
 
 __all__ = [
@@ -856,20 +857,6 @@ _FRF_UNITS = {"m/n": 1.0, "mm/n": 1e-3, "µm/n": 1e-6, "um/n": 1e-6, "nm/n": 1e-
 _LENGTH_UNITS = {"mm": 1.0, "µm": 1e-3, "um": 1e-3, "m": 1e3, "inch": 25.4, "in": 25.4}
 
 
-def _decode(raw: bytes) -> str:
-    """Text of a CSV: UTF-8 (BOM stripped), else Windows-1252."""
-    if raw.startswith(b"\xef\xbb\xbf"):
-        raw = raw[3:]
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError:
-        return raw.decode("cp1252", errors="replace")
-
-
-def _norm_unit(unit: str) -> str:
-    return unit.strip().lower().replace(" ", "").replace("μ", "µ").replace("\u00c2µ", "µ")
-
-
 def _split_header(cell: str) -> tuple[str, str | None]:
     """``"re [µm/N]"`` -> ``("re", "µm/n")``; ``"f_hz"`` -> ``("f_hz", None)``."""
     cell = cell.strip().strip('"').strip()
@@ -892,7 +879,7 @@ class _Table:
 
 def _read_table(p: Path, what: str) -> _Table:
     """Split a CSV into header and rows, skipping blank and ``#`` lines (MapError when empty)."""
-    lines = _decode(read_bytes(p)).splitlines()
+    lines = _decode_text(read_bytes(p)).splitlines()
     content = [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")]
     if not content:
         raise MapError(p, None, f"empty {what} file")

@@ -130,6 +130,7 @@ from scipy.interpolate import BSpline, NdBSpline, make_interp_spline
 
 from ilcnc.errors import MapError
 from ilcnc.fileio import read_bytes
+from ilcnc.logs import _decode_text
 
 __all__ = [
     "SEED002_CIRCLE_CENTRE_MM",
@@ -375,12 +376,7 @@ class _Column:
 
 
 def _read_text(p: Path) -> str:
-    data = read_bytes(p)
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError:
-        text = data.decode("latin-1")  # a lone 0xB5 micro sign from a Windows export
-    return text.lstrip("\ufeff")
+    return _decode_text(read_bytes(p)).lstrip("\ufeff")  # UTF-8 / UTF-16 / Windows-1252, as every ilcnc CSV reader
 
 
 def _split_rows(text: str) -> list[tuple[int, str]]:
