@@ -105,6 +105,11 @@ def simulate(
     against: Annotated[
         Path | None, typer.Option("--against", help="Measure the contour error against this program's path.")
     ] = None,
+    schedule: Annotated[
+        Path | None, typer.Option("--schedule", help="Gain schedule CSV t_s,kp ((m/min)/mm) from `ilcnc tune --method"
+                                  " schedule`, applied to --schedule-axis.")
+    ] = None,
+    schedule_axis: Annotated[str, typer.Option("--schedule-axis", help="Axis the schedule drives (x, y or z).")] = "z",
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Run PROGRAM on the virtual CNC: planned reference, drive models, contour error."""
@@ -118,8 +123,19 @@ def simulate(
         prog = read_program(program, default_units=prof.machine.units)
         orig = read_program(against, default_units=prof.machine.units) if against is not None else None
         console = _console()
-        if as_json:
-            result = sim_mod.simulate_program(prog, prof, against=orig)
+        gains = None
+        if schedule is not None:
+            from ilcnc.plan import plan_program
+            from ilcnc.tune import read_schedule, schedule_on_samples
+
+            if schedule_axis not in prof.axes:
+                raise InputError(schedule, None, f"--schedule-axis {schedule_axis!r} is not an axis of the profile"
+                                                 f" ({', '.join(prof.axes)})")
+            t_s, kp = read_schedule(schedule)
+            n = plan_program(prog, prof).n_samples
+            gains = {schedule_axis: schedule_on_samples(t_s, kp, n, prof.machine.servo_period_s)}
+        if as_json or gains is not None:
+            result = sim_mod.simulate_program(prog, prof, against=orig, gain_schedule=gains)
         else:
             result = _simulate_with_progress(sim_mod, prog, prof, orig, console)
         if out is not None:

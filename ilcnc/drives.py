@@ -137,7 +137,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -821,8 +821,9 @@ def _stuck(a: np.ndarray, b: np.ndarray, cv: np.ndarray) -> tuple[np.ndarray, np
     return a_s, b_s
 
 
-def _kernel_arrays(plants: list[_Plant], period_s: float) -> dict[str, np.ndarray]:
-    """Per-axis matrices of the compiled loop, padded to the largest state dimension."""
+def _kernel_arrays(plants: list[_Plant], period_s: float, *, loop: bool = False) -> dict[str, np.ndarray]:
+    """Per-axis matrices of the compiled loop, padded to the largest state dimension (``loop``: the
+    sub-stepped friction matrices also for an axis without friction, e.g. to run it with a gain schedule)."""
     m = len(plants)
     n = max(p.n for p in plants)
     arr = {
@@ -855,7 +856,7 @@ def _kernel_arrays(plants: list[_Plant], period_s: float) -> dict[str, np.ndarra
         arr["delay"][i] = ss.delay
         arr["kff"][i] = p.kff
         arr["kerr"][i] = p.kerr
-        if p.nonlinear:
+        if p.nonlinear or (loop and p.bf is not None and p.cv is not None):
             assert p.bf is not None and p.cv is not None and p.delay_s == 0.0
             nsub = max(1, math.ceil(period_s / FRICTION_SUBSTEP_S - 1e-9))
             phih, gh = _zoh(p.a, np.column_stack([p.bu, p.bf]), period_s / nsub)
@@ -874,13 +875,19 @@ def _kernel_arrays(plants: list[_Plant], period_s: float) -> dict[str, np.ndarra
     return arr
 
 
-def _friction_column(plant: _Plant, ref: np.ndarray, out: np.ndarray, period_s: float) -> None:
-    """``out = r[0] + q`` of one friction axis (what :func:`axis_response` computes) without whole-array temporaries."""
+def _friction_column(plant: _Plant, ref: np.ndarray, out: np.ndarray, period_s: float,
+                     kerr_1_s: np.ndarray | None = None) -> None:
+    """``out = r[0] + q`` of one friction axis (what :func:`axis_response` computes) without whole-array temporaries.
+
+    ``kerr_1_s`` (N,): a position gain per servo period, 1/s (a gain schedule) instead of the plant's own.
+    """
     if ref.shape[0] and not _all_finite(ref):
         raise ValueError("the reference contains NaN or infinite values")
     _warn_no_numba()
-    arr = _kernel_arrays([plant], period_s)
+    arr = _kernel_arrays([plant], period_s, loop=kerr_1_s is not None)
     args = [arr[k][0] for k in _FRICTION_ARGS]
+    i = _FRICTION_ARGS.index("kerr")
+    args[i] = np.array([args[i]]) if kerr_1_s is None else np.ascontiguousarray(kerr_1_s, dtype=np.float64)
     if ref.shape[0] and not _friction_ref_kernel(ref, out, float(period_s), *args):  # pragma: no cover
         raise DriveModelError("the simulated loop diverged (unstable closed loop)")
 
@@ -900,9 +907,11 @@ def _friction_ref_kernel(
 ):  # pragma: no cover - compiled; checked against _friction_kernel
     """:func:`_friction_kernel` fed from the reference itself: the deviation ``r − r0`` and the
     velocity ``(dev[k] − dev[k−1]) / T`` are formed per sample and ``r0 + q`` is written to ``out``
-    (same numbers, no whole-array temporaries). False if the output is not finite."""
+    (same numbers, no whole-array temporaries). ``kerr`` holds one gain, or one per sample (a gain
+    schedule). False if the output is not finite."""
     npts = ref.shape[0]
     n = cq.shape[0]
+    per_sample = kerr.shape[0] > 1
     x = np.zeros(n)
     xn = np.zeros(n)
     r0 = ref[0]
@@ -918,7 +927,7 @@ def _friction_ref_kernel(
         if not math.isfinite(q):
             ok = False
         out[k] = r0 + q
-        u = kff * vref + kerr * (dev - q)
+        u = kff * vref + kerr[k if per_sample else 0] * (dev - q)
         _friction_steps(x, xn, u, nsub, phih, guh, gfh, cv, bstick, fc, fbreak, vs, phis, gus)
     return ok
 
@@ -1097,7 +1106,9 @@ def cross_coupled_response(
     return r[0] + _run_loop(plants, dev, period_s, path_normals(r), gain)
 
 
-def simulate_drives(ref_mm: np.ndarray, profile: MachineProfile) -> np.ndarray:
+def simulate_drives(
+    ref_mm: np.ndarray, profile: MachineProfile, *, gain_schedule: Mapping[str, np.ndarray] | None = None
+) -> np.ndarray:
     """Simulate every axis of a machine profile.
 
     Parameters
@@ -1107,6 +1118,10 @@ def simulate_drives(ref_mm: np.ndarray, profile: MachineProfile) -> np.ndarray:
         z (or x, y), mm.
     profile : MachineProfile
         The machine: a drive model per axis and the controller structure.
+    gain_schedule : mapping of axis name to ndarray (N,), optional
+        Position-loop gain of that axis in each servo period, (m/min)/mm (what
+        ``ilcnc tune --method schedule`` writes, seed 001), instead of the
+        drive's fixed ``kp_m_min_mm``. Only for ``p_ff_friction`` drives.
 
     Returns
     -------
@@ -1145,8 +1160,18 @@ def simulate_drives(ref_mm: np.ndarray, profile: MachineProfile) -> np.ndarray:
         if ax not in profile.axes:
             out[:, col] = r[:, col]
             continue
+        sched = None
+        if gain_schedule is not None and ax in gain_schedule:
+            sched = np.asarray(gain_schedule[ax], dtype=np.float64)
+            drive = profile.axes[ax].drive
+            if not isinstance(drive, PFfFrictionDrive):
+                raise ProfileError(profile.path, None, f"axes.{ax}.drive: a gain schedule needs a p_ff_friction drive"
+                                                       f" (a P position loop), not {drive.model}")
+            if sched.shape != (r.shape[0],) or not np.all(np.isfinite(sched)) or np.any(sched <= 0):
+                raise ValueError(f"the gain schedule of axis {ax} must hold one finite gain > 0 per sample"
+                                 f" ({r.shape[0]}), got shape {sched.shape}")
         try:
-            jobs.append((ax, _axis_job(profile.axes[ax].drive, r[:, col], out[:, col], period)))
+            jobs.append((ax, _axis_job(profile.axes[ax].drive, r[:, col], out[:, col], period, sched)))
         except DriveModelError as exc:
             raise ProfileError(profile.path, None, f"axes.{ax}.drive: {exc}") from None
 
@@ -1171,14 +1196,16 @@ def simulate_drives(ref_mm: np.ndarray, profile: MachineProfile) -> np.ndarray:
 _PARALLEL_SAMPLES = 100_000
 
 
-def _axis_job(drive: DriveModel, ref: np.ndarray, out: np.ndarray, period_s: float) -> Callable[[], None]:
+def _axis_job(drive: DriveModel, ref: np.ndarray, out: np.ndarray, period_s: float,
+              kp_m_min_mm: np.ndarray | None = None) -> Callable[[], None]:
     """The simulation of one axis into ``out`` (a column of the result), to be run (models are built now,
-    so an unstable one raises here)."""
-    if isinstance(drive, PFfFrictionDrive) and max(drive.coulomb_n, drive.static_n) > 0:
+    so an unstable one raises here). ``kp_m_min_mm``: a gain schedule (the compiled loop runs it)."""
+    if isinstance(drive, PFfFrictionDrive) and (max(drive.coulomb_n, drive.static_n) > 0 or kp_m_min_mm is not None):
         plant = _pff_plant(drive)
+        kerr = None if kp_m_min_mm is None else kp_m_min_mm * (1000.0 / 60.0)
 
         def run() -> None:
-            _friction_column(plant, ref, out, period_s)
+            _friction_column(plant, ref, out, period_s, kerr)
 
         return run
     model = discrete_model(drive, period_s)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -108,6 +108,7 @@ def simulate_program(
     against: Program | None = None,
     progress: Callable[[str], None] | None = None,
     sources: ErrorSources | None = None,
+    gain_schedule: Mapping[str, NDArray[np.float64]] | None = None,
 ) -> SimulationResult:
     """Run a program on the virtual CNC of a profile.
 
@@ -125,6 +126,9 @@ def simulate_program(
     sources : ErrorSources, optional
         Geometric and cutting errors to add to the drives' positions (default:
         those the profile names, loaded here; the learning loop loads them once).
+    gain_schedule : mapping of axis to ndarray (N,), optional
+        Position-loop gain of an axis per servo period, (m/min)/mm (seed 001's schedule,
+        ``ilcnc tune --method schedule``; see :func:`ilcnc.drives.simulate_drives`).
 
     Raises
     ------
@@ -155,7 +159,7 @@ def simulate_program(
     t0 = time.perf_counter()
     if progress:
         progress("drives")
-    act = simulate_drives(ref.pos_mm, profile)
+    act = simulate_drives(ref.pos_mm, profile, gain_schedule=gain_schedule)
     timings["drives"] = time.perf_counter() - t0
     if sources is None:
         sources = ErrorSources.from_profile(profile)

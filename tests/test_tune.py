@@ -460,3 +460,40 @@ def test_tune_profile_lifted_writes_gamma(tmp_path: Path) -> None:
     assert js["axes"]["x"]["law"] == "p" and js["axes"]["x"]["converges"] is True
     assert js["lifted"]["chosen"]["status"] == "monotone"
     assert any(r[-1] == "← chosen" for r in rep.rows())
+
+
+def test_the_written_schedule_runs_in_simulate(schedule_report: TuneReport, tmp_path: Path) -> None:
+    """`simulate --schedule` runs the drives with the gains `tune --method schedule` wrote: the scheduled axis
+    moves as the schedule's own prediction (C2), and the contour error falls as tune reported."""
+    from typer.testing import CliRunner
+
+    from ilcnc.cli import app
+    from ilcnc.tune import read_schedule, schedule_on_samples
+
+    r = schedule_report.result
+    prof = load_profile(SEED001)
+    prog = read_program(STANDIN)
+    ref = plan_program(prog, prof)
+    t_s, kp = read_schedule(schedule_report.schedule_csv)
+    gains = schedule_on_samples(t_s, kp, ref.n_samples, prof.machine.servo_period_s)
+    assert np.allclose(gains[: r.kp.size], r.kp, rtol=1e-5)
+    act = simulate_drives(ref.pos_mm, prof, gain_schedule={"z": gains})
+    n = r.actual_after_mm.shape[0]
+    assert np.max(np.abs(act[:n, 2] - r.actual_after_mm[:, 2])) < 1e-4  # mm: the CSV keeps 6 digits of K_p
+    # a constant schedule at the drive's own gain is the drive
+    fixed = np.full(ref.n_samples, prof.axes["z"].drive.kp_m_min_mm)
+    assert np.allclose(simulate_drives(ref.pos_mm, prof, gain_schedule={"z": fixed}), simulate_drives(ref.pos_mm, prof),
+                       atol=1e-12)
+    # the command line
+    runner = CliRunner()
+    res = runner.invoke(app, ["simulate", str(STANDIN), "--profile", str(SEED001), "--json"])
+    res2 = runner.invoke(app, ["simulate", str(STANDIN), "--profile", str(SEED001), "--json",
+                               "--schedule", str(schedule_report.schedule_csv)])
+    assert res.exit_code == 0 and res2.exit_code == 0, res2.output
+    before = json.loads(res.output)["contour_error_mm"]["rms"]
+    after = json.loads(res2.output)["contour_error_mm"]["rms"]
+    assert after < before
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t_s,kp\n0,1.6\n0.001,-1\n")
+    res3 = runner.invoke(app, ["simulate", str(STANDIN), "--profile", str(SEED001), "--schedule", str(bad)])
+    assert res3.exit_code == 1 and "bad.csv:3: kp must be a finite gain > 0" in res3.output
