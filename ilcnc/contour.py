@@ -12,6 +12,11 @@ actual (measured or simulated) position ``q`` are provided:
   the reference / interpolator is on at that instant) and looks ``window``
   segments *before and after* the hint -- seed 000's eq. (11) looks backwards
   only, which fails as soon as learning makes an axis lead its reference.
+  Given the reference positions, the search also covers a path *length*
+  around the hint that grows with the distance between reference and actual
+  (the *reach*), so a machine lagging many short segments behind its
+  reference is not trapped at a corner (issue 5; :func:`contour_error`,
+  *Notes*).
   Distances are exact point-to-segment and point-to-arc distances, never the
   distance to the nearest vertex or reference sample (which over-estimates the
   error by up to half a segment / sample spacing).
@@ -72,9 +77,11 @@ The search runs in compiled kernels (numba, the ``_k_*`` functions): one loop
 over the samples of a chunk (``chunk`` samples, default 65 536), the chunks
 spread over a thread pool (the kernels release the GIL). Per sample the
 straight candidates of the window are a few dozen flops on one row of a
-segment table; an arc candidate is first bounded by its radii and linear
-range and only evaluated when it could be nearer than the nearest line (on
-stellabee1 that leaves ~1 in 10); arc work (trigonometry, the Newton steps of
+segment table (with a reach, the range of a sample comes from two short
+scans of the cumulative path length outwards from the window); an arc
+candidate is first bounded by its radii and linear range and only evaluated
+when it could be nearer than the nearest line (on stellabee1 that leaves
+~1 in 10); arc work (trigonometry, the Newton steps of
 helices and spirals) runs in separate loops, because a call in the hot loop
 slows numba's code down several times. The kernels repeat the arithmetic of
 the numpy path (:func:`_search`, :func:`_final`, the walk of :func:`_chunk`)
@@ -129,6 +136,7 @@ if HAVE_NUMBA:  # pragma: no cover - exercised by the environment, not by a test
 __all__ = [
     "DEFAULT_CHUNK",
     "DEFAULT_WINDOW",
+    "REACH_FACTOR",
     "CommandError",
     "ContourError",
     "PathGeometry",
@@ -146,6 +154,9 @@ DEFAULT_WINDOW = 3
 DEFAULT_CHUNK = 1 << 16
 #: Walks (re-centred windows) allowed when the nearest point is at a window edge.
 DEFAULT_MAX_WALK = 32
+#: Path length searched on each side of the hint segment, in units of ``|r - q| + reference_slack_mm`` (see
+#: :func:`contour_error`): 4 finds the nearest point across any stretch of path that turns by up to 120 degrees.
+REACH_FACTOR = 4.0
 
 # (first, second, linear) axis of each plane, as RS-274 orders them
 # Coordinate of an inactive segment's start: far away, yet its squared distance (~3e300) stays finite
@@ -202,6 +213,9 @@ class PathGeometry:
         G01 command index k of the move, -1 when the move is not a command.
     length_mm : float64 (M,)
         Path length of each segment (arcs and helices exactly).
+    cum_length_mm : float64 (M + 1,)
+        Path length from the start of the path to the start of each segment, mm (the last entry: the whole
+        length). Inactive segments (rapids) count too: the tool travels them.
     sweep_rad : float64 (M,)
         Swept angle of arcs (0 for straight segments).
     """
@@ -374,6 +388,7 @@ class PathGeometry:
             # for straight-line data of arcs keep the chord (harmless, always overridden)
         self.sweep_rad = sweep
         self.length_mm = length
+        self.cum_length_mm = np.concatenate(([0.0], np.cumsum(length)))
 
     # -- basic properties -----------------------------------------------------------------------
 
@@ -783,6 +798,9 @@ def contour_error(
     actual_mm: ArrayLike,
     hint_seg: ArrayLike,
     *,
+    reference_mm: ArrayLike | None = None,
+    reference_slack_mm: float | ArrayLike = 0.0,
+    reach_factor: float = REACH_FACTOR,
     window: int = DEFAULT_WINDOW,
     max_walk: int = DEFAULT_MAX_WALK,
     chunk: int = DEFAULT_CHUNK,
@@ -798,18 +816,35 @@ def contour_error(
         Actual positions, mm (2 columns: Z = 0).
     hint_seg : (N,) int array or int
         Per sample, the segment (move index) the reference is on at that instant.
+    reference_mm : (N, 3) or (N, 2) array, optional
+        The reference position ``r`` of each sample, mm: a point of its hint segment (or within
+        ``reference_slack_mm`` of it). When given, the search of sample ``q`` covers, besides the
+        ``window`` segments, every segment with a point within the path length
+        ``L = reach_factor * (|r - q| + reference_slack_mm)`` of the hint segment (see *Reach*). A
+        sample whose ``r`` is NaN gets the ``window`` segments only. Default: the ``window`` only.
+    reference_slack_mm : float or (M,) array
+        How far, at most, the reference may be from its hint segment, mm: one value, or one per
+        segment of ``path`` (taken at each sample's hint). The planner's corner rounding (its corner
+        tolerance), plus, when the reference runs another program than ``path`` (a corrected one),
+        how far that program's move is from the segment (for a straight move: the larger of the
+        distances between their start points and between their end points).
+    reach_factor : float
+        ``L`` in units of ``|r - q| + reference_slack_mm``; the default 4 is exact across any stretch
+        of path that turns by up to 120 degrees (see *Reach*).
     window : int
-        Segments searched before *and* after the hint (2 w + 1 candidates).
+        Segments searched before *and* after the hint (2 w + 1 candidates) at least.
     max_walk : int
-        When the nearest point lies on the first or last segment of the window
+        When the nearest point lies on the first or last segment of the searched range
         (the true nearest may lie further out, e.g. a lag of more than
-        ``window`` short segments), the window is moved on by ``window``
-        segments in that direction and searched again while that finds a
+        ``window`` short segments), a window of ``window`` segments each side is moved on by
+        ``window`` segments in that direction and searched again while that finds a
         strictly nearer point, at most this many times. 0 disables it. The
         walk follows the path, so it finds the nearest point of the stretch of
-        path it has covered, not a far-away pass of the tool.
+        path it has covered, not a far-away pass of the tool. It stops at a
+        local minimum of the distance (e.g. behind a corner where the distance
+        grows before it falls again): the reach does not.
     chunk : int
-        Samples processed at once (memory ~ 200 bytes x chunk).
+        Samples processed at once (memory ~ 250 bytes x chunk).
     workers : int, optional
         Threads; default: the number of CPUs.
 
@@ -817,6 +852,32 @@ def contour_error(
     -------
     ContourError
         Samples whose window holds no active segment get NaN and ``seg = -1``.
+
+    Notes
+    -----
+    *Reach.* A window counted in segments covers little path where the segments are short: on a
+    path of 1-ms blocks a machine lagging 90 blocks behind its reference is out of reach of 3 of
+    them, and the walk stops at the first local minimum of the distance. The reach counts path
+    length instead. Let ``r`` lie on the hint segment (the reference, which *is* a point of the
+    path) and ``f`` be the nearest point of the path to ``q``. Then ``|f - q| <= |r - q| = d`` and
+    so ``|f - r| <= 2 d``: the nearest point is within ``2 d`` of the reference *in space*. Along
+    the path it can be farther, without bound where the path folds back. If the stretch of path
+    between ``r`` and ``f`` turns by ``theta < 180`` degrees in all (the sum of its corner angles
+    and arc sweeps; in 3-D the length of its tangent's curve on the unit sphere), its tangents lie
+    within ``theta / 2`` of one direction ``t``, so its length ``s`` satisfies
+    ``s cos(theta / 2) <= (f - r) . t <= 2 d``: ``s <= 2 d / cos(theta / 2)``. A reach
+    ``L = c d`` is thus exact whenever ``cos(theta / 2) >= 2 / c``: ``c = 2`` only on a straight
+    path, ``c = 2 sqrt(2)`` up to one right-angled corner, ``c = 4`` (the default) up to 120
+    degrees of turning. A reference off its segment by up to ``delta`` (``reference_slack_mm``)
+    adds ``delta`` to ``d`` (the point of the segment next to ``r`` is within ``d + delta`` of
+    ``q``). Beyond that bound (a reversal between the reference and the foot) the reach still
+    searches ``L`` of path, and the walk goes on from its ends as before. The arc-length range is
+    measured from the whole hint segment (``r`` may be anywhere on it): the segments ``i`` with
+    ``S[i + 1] >= S[h] - L`` and ``S[i] <= S[h + 1] + L`` (:attr:`PathGeometry.cum_length_mm`
+    ``S``; ``np.searchsorted`` on it in the numpy path, a scan outwards from the window in the
+    kernels, the same integers). The candidates of a range of ``n`` segments are told apart by
+    ``log2(n)`` low bits of the squared distance; a range of a million segments leaves 32 bits of
+    its mantissa to choose by, far below any distance measured.
     """
     p = np.asarray(actual_mm, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] not in (2, 3):
@@ -833,6 +894,18 @@ def contour_error(
     w = int(window)
     if w < 0:
         raise ValueError("window must be >= 0")
+    r = None
+    if reference_mm is not None:
+        r = np.asarray(reference_mm, dtype=np.float64)
+        if r.ndim != 2 or r.shape[0] != n or r.shape[1] not in (2, 3):
+            raise ValueError("reference_mm must be (N, 2) or (N, 3) like actual_mm")
+        if r.shape[1] == 2:
+            r = np.column_stack([r, np.zeros(n)])
+        r = np.ascontiguousarray(r)
+    slack = np.asarray(reference_slack_mm, dtype=np.float64)
+    if slack.shape not in ((), (m,)):
+        raise ValueError(f"reference_slack_mm must be a number or one per segment ({m},), not {slack.shape}")
+    reach = (float(reach_factor), np.ascontiguousarray(np.broadcast_to(slack, (m,))))
     out = ContourError(
         dist_mm=np.empty(n), foot_mm=np.empty((n, 3), order="F"), vector_mm=np.empty((n, 3), order="F"),
         seg=np.empty(n, np.int64), u=np.empty(n), signed_mm=np.empty(n), hint=hint, path=path,
@@ -848,18 +921,20 @@ def contour_error(
         bits = max(1, (2 * w).bit_length())
         pc = np.ascontiguousarray(p)
         hc = hint
+        rc = r if r is not None else np.zeros((1, 3))
 
     def work(k: int) -> None:
         if use_kernel:
-            iw, lo, wd2 = np.empty((5, chunk), np.int64), np.empty(chunk, np.bool_), np.empty(chunk)
+            iw, lo, wd2 = np.empty((8, chunk), np.int64), np.empty(chunk, np.bool_), np.empty(chunk)
             for a in starts[k::nw]:
-                walked[k] += _k_chunk(*tabs, pc, hc, a, min(a + chunk, n), w, bits, int(max_walk), out.dist_mm, out.foot_mm,
+                walked[k] += _k_chunk(*tabs, path.cum_length_mm, pc, hc, rc, r is not None, reach[0], reach[1], a,
+                                      min(a + chunk, n), w, bits, int(max_walk), out.dist_mm, out.foot_mm,
                                       out.vector_mm, out.seg, out.u, out.signed_mm, iw, lo, wd2)
             return
         ws = _Work()
         for a in starts[k::nw]:
             sl = slice(a, min(a + chunk, n))
-            walked[k] += _chunk(path, p[sl], hint[sl], w, max_walk, out, sl, ws)
+            walked[k] += _chunk(path, p[sl], hint[sl], None if r is None else r[sl], reach, w, max_walk, out, sl, ws)
 
     if nw == 1:
         work(0)
@@ -870,35 +945,71 @@ def contour_error(
     return out
 
 
-def _search(path: PathGeometry, p, px, py, pz, h, w: int, ws: _Work):
-    """Nearest of the segments ``h - w .. h + w`` (clipped to the path) for each point.
+def _ranges(path: PathGeometry, px, py, pz, h, r, reach: tuple[float, NDArray[np.float64]], w: int):
+    """First and last segment searched for each point and the low bits its candidate numbers take.
 
-    Returns the segment index and its squared distance (``>= _FAR_D2``: none active), both
-    in buffers of ``ws``.
+    The window ``h - w .. h + w`` (clipped to the path), widened by the reach when the reference
+    ``r`` (n, 3) is given (:func:`contour_error`, *Reach*); ``reach``: the factor and the slack of each segment.
     """
     m = len(path)
-    n = h.shape[0]
-    bits = max(1, (2 * w).bit_length())
-    low = np.int64((1 << bits) - 1)
-    keep = np.int64(_SIGN_CLEAR & ~low)
+    lo = np.maximum(h - w, 0)
+    hi = np.minimum(h + w, m - 1)
+    bits_w = max(1, (2 * w).bit_length())
+    if r is None:
+        return lo, hi, np.full(h.shape[0], bits_w, np.int64)
+    dx, dy, dz = r[:, 0] - px, r[:, 1] - py, r[:, 2] - pz
+    reach_mm = reach[0] * (np.sqrt(dx * dx + dy * dy + dz * dz) + reach[1][h])
+    ok = reach_mm >= 0.0  # NaN: the window only
+    cum = path.cum_length_mm
+    lo_r = np.searchsorted(cum[1:], cum[h] - reach_mm, side="left")  # first segment ending at or after s(h) - L
+    hi_r = np.searchsorted(cum[:-1], cum[h + 1] + reach_mm, side="right") - 1  # last starting at or before s(h+1) + L
+    lo = np.where(ok, np.minimum(lo, lo_r), lo)
+    hi = np.where(ok, np.maximum(hi, hi_r), hi)
+    bits = np.maximum(np.frexp((hi - lo).astype(np.float64))[1].astype(np.int64), bits_w)  # frexp: the bit length
+    return lo, hi, bits
+
+
+def _search(path: PathGeometry, p, px, py, pz, lo, hi, bits, w: int, ws: _Work):
+    """Nearest of the segments ``lo .. hi`` (per point, within the path) for each point.
+
+    Candidate ``j`` is segment ``lo + j``; ``bits`` (per point) low bits of the key hold it. Returns
+    the segment index and its squared distance (``>= _FAR_D2``: none active), both in buffers of
+    ``ws``.
+    """
+    n = lo.shape[0]
+    low = (np.int64(1) << bits) - 1
+    keep = _SIGN_CLEAR & ~low
     best = ws.f("best", n, np.int64)
     best.fill(np.iinfo(np.int64).max)
     idx = ws.f("idx", n, np.int64)
-    for j in range(-w, w + 1):
-        np.add(h, j, out=idx)  # out-of-range indices are clipped by the kernels' take(mode="clip")
+    span = ws.f("span", n, np.int64)
+    np.subtract(hi, lo, out=span)
+    nmax = int(span.max()) if n else 0
+    # every point takes the candidates 0 .. 2w (those past its range repeat its last one, a key that never
+    # wins: same distance, same number); the points of longer ranges take their further ones by themselves
+    common = min(nmax, max(2 * w, int(span.min()) if n else 0))
+    jj = ws.f("jj", n, np.int64)
+    for j in range(common + 1):
+        np.minimum(span, j, out=jj)
+        np.add(lo, jj, out=idx)
         d2 = path._eval(p, px, py, pz, idx, ws)[0]
         # one integer minimum keeps distance and candidate: the squared distance's bits (sign
         # cleared, so a rounding to -0 or -1e-18 counts as 0) with the candidate in the low bits;
         # non-negative doubles order like their bit patterns, and ties go to the earlier segment
         key = d2.view(np.int64)
         key &= keep
-        key |= np.int64(j + w)
+        key |= jj
         np.minimum(best, key, out=best)
+    for j in range(common + 1, nmax + 1):
+        sel = np.flatnonzero(span >= j)
+        d2 = path._eval(p[sel], px[sel], py[sel], pz[sel], lo[sel] + j, ws)[0]
+        key = d2.view(np.int64)
+        key &= keep[sel]
+        key |= np.int64(j)
+        best[sel] = np.minimum(best[sel], key)
     seg = ws.f("seg", n, np.int64)
     np.bitwise_and(best, low, out=seg)
-    seg += h
-    seg -= w
-    np.clip(seg, 0, m - 1, out=seg)
+    seg += lo
     best &= keep
     return seg, best.view(np.float64)
 
@@ -975,44 +1086,42 @@ def _final(path: PathGeometry, p, px, py, pz, seg, ws: _Work):
     return t, vx, vy, vz, d2, signed
 
 
-def _chunk(path: PathGeometry, p, h, w: int, max_walk: int, out: ContourError, sl: slice, ws: _Work) -> int:
+def _chunk(path: PathGeometry, p, h, r, reach: tuple[float, NDArray[np.float64]], w: int, max_walk: int,
+           out: ContourError, sl: slice, ws: _Work) -> int:
     n = p.shape[0]
     pt = ws.f("pt", 3 * n).reshape(3, n)
     pt[...] = p.T
     px, py, pz = pt[0], pt[1], pt[2]
     m = len(path)
-    seg, d2k = _search(path, p, px, py, pz, h, w, ws)
+    lo, hi, bits = _ranges(path, px, py, pz, h, r, reach, w)
+    seg, d2k = _search(path, p, px, py, pz, lo, hi, bits, w, ws)
     none = ~(d2k < _FAR_D2)  # no active segment in the window, or a NaN sample
     frac, vx, vy, vz, d2, signed = _final(path, p, px, py, pz, seg, ws)
     walked = 0
     if max_walk > 0 and w < m:
-        cur = h
+        wlo, whi = lo, hi  # the window each sample searched last (a walk's: c - w .. c + w, not clipped)
         shift = max(w, 1)
+        bits_w = max(1, (2 * w).bit_length())
         wk = _Work()
         for _ in range(max_walk):
             # samples whose nearest segment is the first or last of their window (and the window
             # does not end at the end of the path): the true nearest may lie further out
-            rel = ws.f("rel", n, np.int64)
-            np.subtract(seg, cur, out=rel)
-            np.abs(rel, out=rel)
-            ci = np.flatnonzero(rel == w)
-            if ci.size == 0:
-                break
-            sc, cc = seg[ci], cur[ci]
-            at_lo = (sc == cc - w) & (cc - w > 0)
-            at_hi = (sc == cc + w) & (cc + w < m - 1)
-            keep = (at_lo | at_hi) & ~none[ci]
-            ei = ci[keep]
+            at_lo = (seg == wlo) & (wlo > 0)
+            at_hi = (seg == whi) & (whi < m - 1)
+            ei = np.flatnonzero((at_lo | at_hi) & ~none)
             if ei.size == 0:
                 break
-            at_lo = at_lo[keep]
+            at_lo = at_lo[ei]
             walked += int(ei.size)
             # move the window on so that the current best sits at its other end; a window that
             # finds nothing strictly better leaves the best inside it, which ends that sample's walk
-            cur = cur.copy()
-            cur[ei] = np.clip(np.where(at_lo, seg[ei] - shift, seg[ei] + shift), 0, m - 1)
+            c = np.clip(np.where(at_lo, seg[ei] - shift, seg[ei] + shift), 0, m - 1)
+            wlo, whi = wlo.copy(), whi.copy()
+            wlo[ei] = c - w
+            whi[ei] = c + w
             pe, pxe, pye, pze = p[ei], px[ei], py[ei], pz[ei]
-            s2, _dk = _search(path, pe, pxe, pye, pze, cur[ei], w, wk)
+            s2, _dk = _search(path, pe, pxe, pye, pze, np.maximum(c - w, 0), np.minimum(c + w, m - 1),
+                              np.full(ei.size, bits_w, np.int64), w, wk)
             f2, vx2, vy2, vz2, dd, sg2 = _final(path, pe, pxe, pye, pze, s2, wk)
             bi = np.flatnonzero(dd < d2[ei])
             if bi.size == 0:
@@ -1304,28 +1413,27 @@ def _k_arc_pruned(arct, arci, ja, px, py, pz, best, keep):  # pragma: no cover -
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _k_search_lines(segt, arc_of, arct, arci, flags, m, px, py, pz, h, w, keep):  # pragma: no cover - compiled
-    """The straight candidates of :func:`_search` for one point: (best key, an arc candidate is left to do).
+def _k_search_lines(segt, arc_of, arct, arci, flags, px, py, pz, lo, hi, keep):  # pragma: no cover - compiled
+    """The straight candidates of :func:`_search` (segments ``lo .. hi``) for one point: (best key, an arc
+    candidate is left to do).
 
-    The key is the squared distance's bits (sign cleared) with the candidate number in the low bits, so the
-    minimum does not depend on the order the candidates are taken in (ties go to the lower number): the arcs
-    can come afterwards (:func:`_k_search_arcs`), with the nearest line as the bound that prunes them. No
+    The key is the squared distance's bits (sign cleared) with the candidate number ``i - lo`` in the low bits,
+    so the minimum does not depend on the order the candidates are taken in (ties go to the lower number): the
+    arcs can come afterwards (:func:`_k_search_arcs`), with the nearest line as the bound that prunes them. No
     call to a compiled function here: one in the loop makes numba's code several times slower.
     """
     best = _KEY_MAX
     arcs = False
-    for jj in range(2 * w + 1):
-        i = min(max(h + jj - w, 0), m - 1)
+    for i in range(lo, hi + 1):
         if flags[0] and arc_of[i] >= 0:
             arcs = True
             continue
-        key = (_bits_of(_k_line_d2(segt, i, px, py, pz)) & keep) | np.int64(jj)
+        key = (_bits_of(_k_line_d2(segt, i, px, py, pz)) & keep) | np.int64(i - lo)
         if key < best:
             best = key
     if arcs:  # pruned by the lines already?
         arcs = False
-        for jj in range(2 * w + 1):
-            i = min(max(h + jj - w, 0), m - 1)
+        for i in range(lo, hi + 1):
             ja = arc_of[i]
             if ja >= 0 and not _k_arc_pruned(arct, arci, ja, px, py, pz, best, keep):
                 arcs = True
@@ -1334,34 +1442,56 @@ def _k_search_lines(segt, arc_of, arct, arci, flags, m, px, py, pz, h, w, keep):
 
 
 @njit(cache=True, nogil=True)
-def _k_search_arcs(arct, arci, arc_of, flags, m, px, py, pz, h, w, keep, best):  # pragma: no cover - compiled
-    """The arc candidates of :func:`_search` for one point, after the lines: the best key."""
-    for jj in range(2 * w + 1):
-        i = min(max(h + jj - w, 0), m - 1)
+def _k_search_arcs(arct, arci, arc_of, flags, px, py, pz, lo, hi, keep, best):  # pragma: no cover - compiled
+    """The arc candidates of :func:`_search` (segments ``lo .. hi``) for one point, after the lines: the best key."""
+    for i in range(lo, hi + 1):
         ja = arc_of[i]
         if ja < 0 or _k_arc_pruned(arct, arci, ja, px, py, pz, best, keep):
             continue
-        key = (_bits_of(_k_arc_d2_fast(arct, arci, flags[3] != 0, ja, px, py, pz)) & keep) | np.int64(jj)
+        key = (_bits_of(_k_arc_d2_fast(arct, arci, flags[3] != 0, ja, px, py, pz)) & keep) | np.int64(i - lo)
         if key < best:
             best = key
     return best
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _k_decode(best, h, w, bits, m):  # pragma: no cover - compiled
+def _k_keep(bits):  # pragma: no cover - compiled
+    """The bits of a key that hold the squared distance, when ``bits`` low bits hold the candidate."""
+    return _KEY_MAX & ~((np.int64(1) << bits) - 1)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_bits(bits_w, lo, hi, w):  # pragma: no cover - compiled
+    """Low bits of the keys of the range ``lo .. hi``: those of the window, more for a longer range (as
+    :func:`_ranges`)."""
+    span = hi - lo
+    if span <= 2 * w:
+        return bits_w
+    b = 0
+    while span > 0:
+        b += 1
+        span >>= 1
+    return max(b, bits_w)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k_decode(best, lo, bits):  # pragma: no cover - compiled
     """Segment and squared distance (``>= _FAR_D2``: none) of a best key, as :func:`_search` returns them."""
     low = (np.int64(1) << bits) - 1
-    return min(max((best & low) + h - w, 0), m - 1), _float_of(best & ~low & _KEY_MAX)
+    return (best & low) + lo, _float_of(best & ~low & _KEY_MAX)
 
 
 @njit(cache=True, nogil=True)
 def _k_search(segt, arc_of, arct, arci, flags, m, px, py, pz, h, w, bits):  # pragma: no cover - compiled
-    """:func:`_search` of one point: (segment, key of its squared distance as float)."""
-    keep = _KEY_MAX & ~((np.int64(1) << bits) - 1)
-    best, arcs = _k_search_lines(segt, arc_of, arct, arci, flags, m, px, py, pz, h, w, keep)
+    """:func:`_search` of one point in the window ``h - w .. h + w``: (segment, key of its squared distance as
+    float)."""
+    keep = _k_keep(bits)
+    lo = max(h - w, 0)
+    hi = min(h + w, m - 1)
+    best, arcs = _k_search_lines(segt, arc_of, arct, arci, flags, px, py, pz, lo, hi, keep)
     if arcs:
-        best = _k_search_arcs(arct, arci, arc_of, flags, m, px, py, pz, h, w, keep, best)
-    return _k_decode(best, h, w, bits, m)
+        best = _k_search_arcs(arct, arci, arc_of, flags, px, py, pz, lo, hi, keep, best)
+    return _k_decode(best, lo, bits)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -1438,23 +1568,43 @@ def _k_store(k, p, sg, t, vx, vy, vz, d2, sv, dist, foot, vec, segout, u, signed
 
 
 @njit(cache=True, nogil=True)
-def _k_chunk(segt, side, arc_of, arct, arci, flags, p, hint, a0, a1, w, bits, max_walk, dist, foot, vec, segout, u,
-             signed, iw, lo, wd2):  # pragma: no cover - compiled
+def _k_chunk(segt, side, arc_of, arct, arci, flags, cum, p, hint, ref, use_ref, reach_factor, slack, a0, a1, w, bits,
+             max_walk, dist, foot, vec, segout, u, signed, iw, lo, wd2):  # pragma: no cover - compiled
     """:func:`_chunk` of samples ``a0:a1``: writes the outputs and returns the number of walks.
 
-    ``bits`` as in :func:`_search`. Work space, at least ``a1 - a0`` long: ``iw`` (5 rows, int64: walking
-    samples, their window centres, best keys, samples with arcs to search, samples whose foot is on an
-    arc), ``lo`` (bool), ``wd2`` (float64). The straight segments are done in loops without calls, the
-    arcs afterwards in loops of their own (see :func:`_k_search_lines`).
+    ``cum``: :attr:`PathGeometry.cum_length_mm`; ``ref`` (N, 3): the reference, read when ``use_ref`` (the
+    reach, :func:`_ranges`, with the slack of each segment ``slack`` (M,)). ``bits`` as in :func:`_search` for
+    the window of ``w``. Work space, at least ``a1 - a0`` long: ``iw`` (8 rows, int64: walking samples, first
+    and last segment of their windows, best keys, samples with arcs to search, samples whose foot is on an arc,
+    first and last segment searched per sample), ``lo`` (bool), ``wd2`` (float64). The straight segments are
+    done in loops without calls, the arcs afterwards in loops of their own (see :func:`_k_search_lines`).
     """
     m = segt.shape[0]
     nan = np.nan
-    keep = _KEY_MAX & ~((np.int64(1) << bits) - 1)
-    walkers, cur, bestk, pend, arcq = iw[0], iw[1], iw[2], iw[3], iw[4]
-    # 1. the straight candidates of every sample
+    walkers, wlo, whi, bestk, pend, arcq, slo, shi = iw[0], iw[1], iw[2], iw[3], iw[4], iw[5], iw[6], iw[7]
+    # 1. the range of every sample and its straight candidates
     npend = 0
     for k in range(a0, a1):
-        best, arcs = _k_search_lines(segt, arc_of, arct, arci, flags, m, p[k, 0], p[k, 1], p[k, 2], hint[k], w, keep)
+        h = hint[k]
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        first = max(h - w, 0)
+        last = min(h + w, m - 1)
+        if use_ref:
+            dx = ref[k, 0] - px
+            dy = ref[k, 1] - py
+            dz = ref[k, 2] - pz
+            reach = reach_factor * (math.sqrt(dx * dx + dy * dy + dz * dz) + slack[h])
+            if reach >= 0.0:  # NaN: the window only
+                x = cum[h] - reach
+                while first > 0 and cum[first] >= x:
+                    first -= 1
+                x = cum[h + 1] + reach
+                while last < m - 1 and cum[last + 1] <= x:
+                    last += 1
+        slo[k - a0] = first
+        shi[k - a0] = last
+        keep = _k_keep(_k_bits(bits, first, last, w))
+        best, arcs = _k_search_lines(segt, arc_of, arct, arci, flags, px, py, pz, first, last, keep)
         bestk[k - a0] = best
         if arcs:
             pend[npend] = k
@@ -1462,14 +1612,17 @@ def _k_chunk(segt, side, arc_of, arct, arci, flags, p, hint, a0, a1, w, bits, ma
     # 2. the arcs not pruned by the nearest line
     for q in range(npend):
         k = pend[q]
-        bestk[k - a0] = _k_search_arcs(arct, arci, arc_of, flags, m, p[k, 0], p[k, 1], p[k, 2], hint[k], w, keep,
+        first, last = slo[k - a0], shi[k - a0]
+        keep = _k_keep(_k_bits(bits, first, last, w))
+        bestk[k - a0] = _k_search_arcs(arct, arci, arc_of, flags, p[k, 0], p[k, 1], p[k, 2], first, last, keep,
                                        bestk[k - a0])
     # 3. the exact foot of every sample on a straight segment (arcs: step 4)
     nwalk = 0
     narc = 0
+    walking = max_walk > 0 and w < m
     for k in range(a0, a1):
-        h = hint[k]
-        sg, d2k = _k_decode(bestk[k - a0], h, w, bits, m)
+        first, last = slo[k - a0], shi[k - a0]
+        sg, d2k = _k_decode(bestk[k - a0], first, _k_bits(bits, first, last, w))
         if not d2k < _FAR_D2:  # no active segment in the window, or a NaN sample
             segout[k] = -1
             dist[k] = nan
@@ -1486,9 +1639,10 @@ def _k_chunk(segt, side, arc_of, arct, arci, flags, p, hint, a0, a1, w, bits, ma
             continue
         t, vx, vy, vz, d2, sv = _k_final_line(segt, side, flags, p[k, 0], p[k, 1], p[k, 2], sg)
         _k_store(k, p, sg, t, vx, vy, vz, d2, sv, dist, foot, vec, segout, u, signed)
-        if max_walk > 0 and w < m and abs(sg - h) == w:
+        if walking and ((sg == first and first > 0) or (sg == last and last < m - 1)):
             walkers[nwalk] = k
-            cur[nwalk] = h
+            wlo[nwalk] = first
+            whi[nwalk] = last
             wd2[nwalk] = d2
             nwalk += 1
     # 4. feet on arcs
@@ -1497,10 +1651,11 @@ def _k_chunk(segt, side, arc_of, arct, arci, flags, p, hint, a0, a1, w, bits, ma
         sg = segout[k]
         t, vx, vy, vz, d2, sv = _k_final_arc(arct, arci, flags, arc_of[sg], p[k, 0], p[k, 1], p[k, 2])
         _k_store(k, p, sg, t, vx, vy, vz, d2, sv, dist, foot, vec, segout, u, signed)
-        h = hint[k]
-        if max_walk > 0 and w < m and abs(sg - h) == w:
+        first, last = slo[k - a0], shi[k - a0]
+        if walking and ((sg == first and first > 0) or (sg == last and last < m - 1)):
             walkers[nwalk] = k
-            cur[nwalk] = h
+            wlo[nwalk] = first
+            whi[nwalk] = last
             wd2[nwalk] = d2
             nwalk += 1
     # 5. the walk, as the numpy path does it chunk-wide: every round moves the windows of all samples still at
@@ -1515,12 +1670,13 @@ def _k_chunk(segt, side, arc_of, arct, arci, flags, p, hint, a0, a1, w, bits, ma
         nk = 0
         for q in range(nwalk):
             k = walkers[q]
-            sc, cc = segout[k], cur[q]
-            at_lo = sc == cc - w and cc - w > 0
-            at_hi = sc == cc + w and cc + w < m - 1
+            sc = segout[k]
+            at_lo = sc == wlo[q] and wlo[q] > 0
+            at_hi = sc == whi[q] and whi[q] < m - 1
             if at_lo or at_hi:
                 walkers[nk] = k
-                cur[nk] = cc
+                wlo[nk] = wlo[q]
+                whi[nk] = whi[q]
                 wd2[nk] = wd2[q]
                 lo[nk] = at_lo
                 nk += 1
@@ -1533,7 +1689,8 @@ def _k_chunk(segt, side, arc_of, arct, arci, flags, p, hint, a0, a1, w, bits, ma
             k = walkers[q]
             c = segout[k] - shift if lo[q] else segout[k] + shift
             c = min(max(c, 0), m - 1)
-            cur[q] = c
+            wlo[q] = c - w
+            whi[q] = c + w
             px, py, pz = p[k, 0], p[k, 1], p[k, 2]
             s2, _dk = _k_search(segt, arc_of, arct, arci, flags, m, px, py, pz, c, w, bits)
             t, vx, vy, vz, d2, sv = _k_final(segt, side, arc_of, arct, arci, flags, px, py, pz, s2)
@@ -1547,9 +1704,10 @@ def _k_chunk(segt, side, arc_of, arct, arci, flags, p, hint, a0, a1, w, bits, ma
         nk = 0
         for q in range(nwalk):
             k = walkers[q]
-            if abs(segout[k] - cur[q]) == w:
+            if segout[k] == wlo[q] or segout[k] == whi[q]:
                 walkers[nk] = k
-                cur[nk] = cur[q]
+                wlo[nk] = wlo[q]
+                whi[nk] = whi[q]
                 wd2[nk] = wd2[q]
                 nk += 1
         nwalk = nk

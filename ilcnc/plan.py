@@ -37,6 +37,48 @@ around it is lowered and that group is planned again.
 Rapids and feed moves form separate *groups* with their own time constants
 (rapids are much faster); the planner comes to a stop between groups.
 
+Path control
+------------
+The program's own path control mode (``MoveTable.blend_tol_mm``, set by
+G-code ``G61``/``G61.1``/``G64 [P]`` and Klartext cycle 32) is applied per
+corner, as LinuxCNC's trajectory planner does (``tp.c``/``tc.c``, 2.9):
+
+* the move *before* a corner decides whether it is blended or stopped at
+  (LinuxCNC stores the mode in each segment when it is queued and checks the
+  previous segment's ``term_cond`` at the junction). A move without a
+  program setting (NaN) takes the profile's ``corner_tolerance_mm``;
+* exact path (``G61``, tolerance 0): stop at the corner, but pass a tangent
+  join at speed; exact stop (``G61.1``): stop at the end of every move;
+* blending: the corner tolerance is the smaller of the two moves'
+  tolerances (``tcFindBlendTolerance``; a move in an exact mode after the
+  corner sets none). A tolerance the program sets is also bounded, as
+  LinuxCNC bounds it, by a quarter of the shorter of the two moves; so
+  ``G64`` without P (or ``P0``: +inf in the table) is "as fast as the axes
+  allow, within a quarter of the moves' length": the filters' corner rounding
+  at the speed the acceleration limits permit. The profile's tolerance is
+  used as it is (no quarter bound), as before;
+* arcs: LinuxCNC follows them exactly in every mode; here the filters shrink
+  them, by at most the move's ``G64 P`` or, in the exact modes and without
+  a bound, the profile's tolerance;
+* ``G64 Q`` (LinuxCNC merges short collinear G1 blocks within Q) is ignored:
+  commands are never merged.
+
+Compared with LinuxCNC 2.9 (``configs/linuxcnc-sim``, 100 mm/s, 1000 mm/s²):
+on jscut's ``jsdc.gcode`` with ``G64`` the planned path is 12 µm RMS (234 µm
+at most) from LinuxCNC's and 1.3 % slower; with ``G64 P0.05`` 2.3 µm RMS
+(26 µm at most), 3.5 % slower; a square in ``G61`` is 0.1 µm from it.
+
+Inverse time
+------------
+A move with ``MoveTable.block_time_s`` (``G93``) runs at the speed its
+length and time give; a block of zero length is a stand-still of its time
+(``60 / F`` s), whose junctions both take the corner between the moves
+around it. LinuxCNC 2.9 does not stand still there: its planner drops
+zero-length segments (measured on ``configs/linuxcnc-sim``: no pause).
+The ideal interpolator's last tick is at the group's end, and a total time
+within float noise (relative 1e-9) of a whole number of periods is that many
+ticks, so one block per period gives one sample per block.
+
 Performance
 -----------
 Per group, the ideal interpolator, the moving averages, the running sum back
@@ -51,8 +93,9 @@ against, operation for operation the same arithmetic, so the numbers are the
 same bit for bit; it also runs when numba is missing. On the 2-core
 development machine the kernel plans 25-35 million samples per CPU-second,
 9x the numpy path (``bench/simulate.py``); the 16-hour ``stellabee1`` (57.7 M
-samples) plans in 2-3 s, of which ~1 s is mapping the 2.1 GB of fresh memory
-the reference occupies. The kernels are compiled once (numba cache, ~10 s).
+samples, planned with the profile's corner tolerance instead of its own ``G64``,
+which makes it 7.5 h and 27 M samples) plans in 2-3 s, of which ~1 s is mapping
+the 2.1 GB of fresh memory the reference occupies. The kernels are compiled once (numba cache, ~10 s).
 """
 
 from __future__ import annotations
@@ -82,6 +125,11 @@ _FD_NOISE = 1e-5
 _BLOCK = 1024
 #: Rows the position array is given beyond its estimate (plus 1/64 of it) for groups re-planned slower.
 _SLACK_ROWS = 65536
+#: Relative slack on the number of interpolator ticks (float noise of a sum of millions of durations).
+_TICK_SLACK = 1e-9
+#: Largest corner tolerance a program can set (G64, G64 P), as a fraction of the shorter adjoining move:
+#: LinuxCNC's own bound (``tcFindBlendTolerance``, tolerance_ratio 0.25).
+_BLEND_LENGTH_FRACTION = 0.25
 
 
 @dataclass(slots=True)
@@ -225,11 +273,12 @@ def _plan(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corn
     m = len(moves)
     length = move_lengths_mm(moves)
     speed = _nominal_speed(moves, length, limits)
+    hold_s = _stand_still_s(moves, length)
     empty = Reference(period_s, np.zeros((0, 3)), np.zeros(0, np.int32), np.zeros(0, np.int32),
                       np.zeros(0, np.int32), speed)
     if m == 0:
         return empty
-    active = length > _EPS
+    active = (length > _EPS) | (hold_s > 0.0)
     geo = _Geometry(*_directions(moves), arc_sweep_rad(moves))
     hold = max(_HOLD_SAMPLES, math.ceil(in_position_s / period_s))
     setups = []
@@ -237,8 +286,8 @@ def _plan(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corn
         idx = np.arange(g0, g1)
         idx = idx[active[idx]]
         if idx.size:
-            setups.append(_group_setup(moves, geo, idx, length, speed, limits, period_s, mode, corner_tolerance_mm,
-                                       jerk_time_constant_s))
+            setups.append(_group_setup(moves, geo, idx, length, speed, hold_s, limits, period_s, mode,
+                                       corner_tolerance_mm, jerk_time_constant_s))
     # stand still between groups: an in-position check after rapids (and before them) as CNCs
     # do, so the drives settle before the next group; it also keeps the finite differences of one
     # group's end and the next one's start apart; no stand-still after the last group
@@ -305,6 +354,14 @@ def _groups(kind: NDArray[np.int8], active: NDArray[np.bool_]) -> list[tuple[int
     edges = np.flatnonzero(rapid[1:] != rapid[:-1]) + 1
     bounds = np.concatenate(([0], edges, [kind.shape[0]]))
     return [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+
+
+def _stand_still_s(moves: MoveTable, length: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Stand-still of every move, s: the programmed time of a zero-length inverse-time (G93) block, else 0."""
+    bt = moves.block_time_s
+    with np.errstate(invalid="ignore"):
+        still = (length <= _EPS) & np.isfinite(bt) & (bt > 0.0) & (moves.kind != MOVE_RAPID)
+    return np.where(still, bt, 0.0)
 
 
 def _directions(moves: MoveTable) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -402,10 +459,9 @@ def _sample_ideal(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], piec
                   ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Positions of the ideal interpolator at every servo tick of a group, and the move index there."""
     plen, pspd, owner, offs, dur, mlen = pieces
-    t_end = np.cumsum(dur)
-    total = float(t_end[-1])
-    n = max(1, math.ceil(total / period_s - 1e-12))
+    n, t_end, total = _ideal_samples(dur, period_s)
     t = np.minimum(np.arange(1, n + 1) * period_s, total)
+    t[-1] = total
     k = np.minimum(np.searchsorted(t_end, t - 1e-12), plen.shape[0] - 1)
     s_move = offs[k] + (t - (t_end[k] - dur[k])) * pspd[k]  # arc length within the move
     frac = np.clip(s_move / mlen[owner[k]], 0.0, 1.0)
@@ -440,10 +496,51 @@ def _position_on_moves(moves: MoveTable, mv: NDArray[np.int64], frac: NDArray[np
     return pos
 
 
+def _junction_tolerances(blend_tol: NDArray[np.float64], default_tol_mm: float, length: NDArray[np.float64]
+                         ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Corner tolerance of each junction of a group from the path control of its moves (module docstring,
+    "Path control").
+
+    Parameters
+    ----------
+    blend_tol : ndarray (n,)
+        ``MoveTable.blend_tol_mm`` of the group's moves, mm (NaN: no program setting).
+    default_tol_mm : float
+        The profile's corner tolerance, mm, for moves without a program setting.
+    length : ndarray (n,)
+        Their lengths, mm (inf for a move that bounds no tolerance).
+
+    Returns
+    -------
+    tol_j : ndarray (n - 1,)
+        Largest deviation at the corner between move i and move i + 1, mm (0: stop unless tangent).
+    stop : ndarray (n - 1,) bool
+        Junctions where the axes stop even when the moves are tangent (``G61.1``).
+    """
+    tol = np.where(np.isnan(blend_tol), default_tol_mm, blend_tol)
+    t_a, t_b = tol[:-1], tol[1:]
+    # the move before the corner decides blend or stop; when both blend, the smaller tolerance
+    # (an exact-mode move after the corner sets none), as LinuxCNC's tcFindBlendTolerance
+    tol_j = np.where(t_a > 0.0, np.where(t_b > 0.0, np.minimum(t_a, t_b), t_a), 0.0)
+    # a tolerance the program sets (G64, G64 P) is also bounded as LinuxCNC bounds it: a quarter of the
+    # shorter adjoining move (the profile's tolerance is used as it is)
+    programmed = ~np.isnan(blend_tol[:-1])
+    if programmed.any():
+        quarter = _BLEND_LENGTH_FRACTION * np.minimum(length[:-1], length[1:])
+        tol_j = np.where(programmed & (tol_j > 0.0), np.minimum(tol_j, quarter), tol_j)
+    return tol_j, t_a < 0.0
+
+
 def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.float64],
-                   t_in: NDArray[np.float64], t_out: NDArray[np.float64], limits: PlanLimits, tol_mm: float,
-                   filt_s: tuple[float, ...], v_nom: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                   t_in: NDArray[np.float64], t_out: NDArray[np.float64], limits: PlanLimits, default_tol_mm: float,
+                   filt_s: tuple[float, ...], v_nom: NDArray[np.float64],
+                   still: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Speed limits at each junction inside a group (between idx[i] and idx[i+1]) and per move (arcs).
+
+    The corner tolerances come from the moves' path control (``moves.blend_tol_mm``) and
+    ``default_tol_mm``, the profile's tolerance, which also bounds the shrinking of arcs in the exact
+    and unbounded modes; ``still`` marks the group's stand-still moves (zero-length inverse-time
+    blocks), which take the tangents of the moves around them.
 
     Returns
     -------
@@ -460,8 +557,10 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
     acc_min = float(np.min(limits.acceleration_mm_s2))
     jerk_min = float(np.min(limits.jerk_mm_s3))
     n = idx.shape[0]
+    blend_g = moves.blend_tol_mm[idx]
     v_move = np.full(n, np.inf)
-    # arcs: centripetal acceleration and jerk, and shrinkage by the filters v^2 var / (2 R)
+    # arcs: centripetal acceleration and jerk, and shrinkage by the filters v^2 var / (2 R), bounded by the
+    # move's tolerance (the profile's in the exact modes and without a bound: LinuxCNC follows arcs exactly)
     is_arc = moves.kind[idx] >= MOVE_ARC_CW
     if is_arc.any():
         mi = idx[is_arc]
@@ -474,19 +573,38 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
         r = np.maximum(r, _EPS)
         lim = np.sqrt(acc_min * r)
         lim = np.minimum(lim, np.cbrt(jerk_min * r * r))
-        if var_t2 > 0 and tol_mm > 0:
-            lim = np.minimum(lim, np.sqrt(2.0 * tol_mm * r / var_t2))
+        if var_t2 > 0:
+            t_arc = blend_g[is_arc]
+            with np.errstate(invalid="ignore"):
+                t_arc = np.where((t_arc > 0) & np.isfinite(t_arc), t_arc, default_tol_mm)
+            if np.any(t_arc > 0):
+                lim = np.where(t_arc > 0, np.minimum(lim, np.sqrt(2.0 * t_arc * r / var_t2)), lim)
         v_move[is_arc] = lim
     if n < 2:
         return np.zeros(0), v_move
     u1 = t_out[idx[:-1]]
     u2 = t_in[idx[1:]]
+    seg_len = length[idx]
+    if still.any():
+        # a stand-still block has no direction: both its junctions see the corner between the moves around it
+        # (the end tangent of the last move before it, the start tangent of the first after it), and its zero
+        # length bounds no tolerance
+        k = np.arange(n)
+        before = np.maximum.accumulate(np.where(still, -1, k))
+        after = np.minimum.accumulate(np.where(still, n, k)[::-1])[::-1]
+        u_out = np.where((before >= 0)[:, None], t_out[idx[np.maximum(before, 0)]], 0.0)
+        u_in = np.where((after < n)[:, None], t_in[idx[np.minimum(after, n - 1)]], 0.0)
+        u1, u2 = u_out[:-1], u_in[1:]
+        seg_len = np.where(still, np.inf, seg_len)
     du = np.linalg.norm(u2 - u1, axis=1)
+    tol_j, stop = _junction_tolerances(blend_g, default_tol_mm, seg_len)
     vj = np.full(n - 1, np.inf)
-    # corner rounding by the filters stays within the tolerance
+    # corner rounding by the filters stays within the tolerance; an exact path stops where the direction changes
     if dev_per_v > 0:
-        with np.errstate(divide="ignore"):
-            vj = np.where(du > 1e-12, tol_mm / (du * dev_per_v), np.inf) if tol_mm > 0 else np.where(du > 1e-9, 0.0, np.inf)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vj = np.where(tol_j > 0, np.where(du > 1e-12, tol_j / (du * dev_per_v), np.inf),
+                          np.where(du > 1e-9, 0.0, np.inf))
+        vj = np.where(stop, 0.0, vj)
     # velocity jump of every axis within what the first filter turns into its acceleration limit
     if t1 > 0:
         dua = np.abs(u2 - u1)
@@ -494,15 +612,16 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
             va = np.where(dua > 1e-12, limits.acceleration_mm_s2[None, :] * t1 / dua, np.inf)
         vj = np.minimum(vj, va.min(axis=1))
     # densely segmented curves act like arcs: curvature from the turn over the mean segment length
-    if var_t2 > 0 and tol_mm > 0:
+    curve = tol_j > 0
+    if var_t2 > 0 and curve.any():
         seg = 0.5 * (length[idx[:-1]] + length[idx[1:]])
         kappa = du / np.maximum(seg, _EPS)
-        with np.errstate(divide="ignore"):
-            v_curve = np.where(kappa > 1e-12, np.sqrt(2.0 * tol_mm / (kappa * var_t2)), np.inf)
+        with np.errstate(divide="ignore", invalid="ignore"):  # 0 / 0 at exact-path junctions, masked below
+            v_curve = np.where(kappa > 1e-12, np.sqrt(2.0 * tol_j / (kappa * var_t2)), np.inf)
             v_cent = np.where(kappa > 1e-12, np.sqrt(acc_min / kappa), np.inf)
         # only where the segments are shorter than the distance covered during the filter span
         v_pair = np.minimum(v_nom[:-1], v_nom[1:])
-        short = seg < v_pair * sum(filt_s)
+        short = curve & (seg < v_pair * sum(filt_s))
         vj = np.where(short, np.minimum(vj, np.minimum(v_curve, v_cent)), vj)
     return vj, v_move
 
@@ -514,6 +633,7 @@ class _GroupSetup:
     idx: NDArray[np.int64]
     v: NDArray[np.float64]
     vj: NDArray[np.float64]
+    hold: NDArray[np.float64]
     lengths: tuple[int, ...]
     span_s: float
     first: _Pieces
@@ -521,28 +641,39 @@ class _GroupSetup:
 
 
 def _group_setup(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], length: NDArray[np.float64],
-                 speed: NDArray[np.float64], limits: PlanLimits, period_s: float, mode: str, tol_mm: float,
-                 jerk_tc_s: float) -> _GroupSetup:
-    """Speeds, junction limits and filters of one group (moves ``idx``, all rapids or all feeds)."""
+                 speed: NDArray[np.float64], hold_s: NDArray[np.float64], limits: PlanLimits, period_s: float,
+                 mode: str, default_tol_mm: float, jerk_tc_s: float) -> _GroupSetup:
+    """Speeds, junction limits and filters of one group (moves ``idx``, all rapids or all feeds).
+
+    ``hold_s`` is the stand-still of every move (:func:`_stand_still_s`), s; ``default_tol_mm`` the
+    profile's corner tolerance (moves without path control in the program).
+    """
     t_in, t_out = geo.t_in, geo.t_out
     v = speed[idx].copy()
+    hold = hold_s[idx]
     u_abs = np.maximum(np.abs(t_in[idx]), np.abs(t_out[idx]))
     vmax_axis = np.max(v[:, None] * u_abs, axis=0)
     lengths = _filter_lengths(mode, vmax_axis, limits, period_s, jerk_tc_s)
     filt_s = tuple(n * period_s for n in lengths)
-    vj, v_move = _corner_limits(moves, idx, length, t_in, t_out, limits, tol_mm, filt_s, v)
+    vj, v_move = _corner_limits(moves, idx, length, t_in, t_out, limits, default_tol_mm, filt_s, v, hold > 0.0)
     v = np.minimum(v, v_move)
     span_s = sum(filt_s)
-    first = _pieces(length[idx], v * np.ones(idx.shape[0]), vj, span_s)
+    first = _pieces(length[idx], v * np.ones(idx.shape[0]), vj, span_s, hold)
     size = _ideal_samples(first[4], period_s)[0] + sum(n - 1 for n in lengths)
-    return _GroupSetup(idx, v, vj, lengths, span_s, first, size)
+    return _GroupSetup(idx, v, vj, hold, lengths, span_s, first, size)
 
 
 def _ideal_samples(dur: NDArray[np.float64], period_s: float) -> tuple[int, NDArray[np.float64], float]:
-    """Ticks of the ideal interpolator over pieces of durations ``dur``, their end times, the total time."""
+    """Ticks of the ideal interpolator over pieces of durations ``dur``, their end times, the total time.
+
+    The last tick is at the total time (:func:`_sample_ideal`); a total within ``_TICK_SLACK`` of a whole
+    number of periods (relative: the float noise of summing many durations, e.g. inverse-time blocks of one
+    period each) is that number of ticks, not one more a fraction of a period later (a repeated last sample).
+    """
     t_end = np.cumsum(dur)
     total = float(t_end[-1])
-    return max(1, math.ceil(total / period_s - 1e-12)), t_end, total
+    ticks = total / period_s
+    return max(1, math.ceil(ticks - _TICK_SLACK * max(1.0, ticks))), t_end, total
 
 
 def _violation_window(bad: NDArray[np.int64], total: int, n_sig: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -591,7 +722,7 @@ def _plan_group_numpy(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: 
         total = sum(n - 1 for n in lengths) + 3
         lo_s, hi_s = _violation_window(bad, total, mv_sig.shape[0])
         scale[_slower_moves(np.searchsorted(idx, mv_sig[lo_s]), np.searchsorted(idx, mv_sig[hi_s]), idx.shape[0])] *= 0.8
-        pieces = _pieces(length[idx], v * scale, vj, g.span_s)
+        pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold)
     n_out = out.shape[0] - 1
     buf = _reserve(buf, at + n_out)
     buf[at:at + n_out] = out[1:]
@@ -640,7 +771,7 @@ def _plan_group_kernel(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length:
         lo_s, hi_s = _violation_window(bad, extra + 3, n + 1)
         lo_g, hi_g = (np.where(x > 0, np.searchsorted(cum, x - 1, side="right"), 0) for x in (lo_s, hi_s))
         scale[_slower_moves(lo_g, hi_g, idx.shape[0])] *= 0.8
-        pieces = _pieces(length[idx], v * scale, vj, g.span_s)
+        pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold)
     # run lengths of the move column: the start sample and the filter delay are on the first move, the
     # filters' tail on the move of the last ideal sample; the start sample itself is not returned
     delay = extra // 2
@@ -687,17 +818,18 @@ def _set_axis(x0, x1, x2, axis, value):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def _ideal_block(k0, k1, i, period, total, t_end, dur, pspd, owner, offs, mlen, gs, ge, garc, ga1, ga2, gc1, gc2, gr, gt0,
-                 gssw, prev, blk, counts):  # pragma: no cover - compiled
+def _ideal_block(k0, k1, i, period, total, last, t_end, dur, pspd, owner, offs, mlen, gs, ge, garc, ga1, ga2, gc1, gc2,
+                 gr, gt0, gssw, prev, blk, counts):  # pragma: no cover - compiled
     """Samples ``k0:k1`` of the ideal interpolator (:func:`_sample_ideal`) as increments into ``blk``.
 
     ``i`` is the piece of the previous sample, ``prev`` its position (updated); returns the piece of the last.
+    Sample ``last`` (the interpolator's last) is at ``total``.
     """
     npc = t_end.shape[0]
     px, py, pz = prev[0], prev[1], prev[2]
     for k in range(k0, k1):
         t = (k + 1) * period
-        if t > total:
+        if t > total or k == last:
             t = total
         tt = t - 1e-12
         while i < npc - 1 and t_end[i] < tt:  # searchsorted(t_end, t - 1e-12) on increasing t
@@ -865,8 +997,8 @@ def _group_kernel(t_end, dur, pspd, owner, offs, mlen, n, period, total, gs, ge,
         nb = min(_BLOCK, ntot - k0)
         k1 = min(k0 + nb, n)
         if k1 > k0:
-            i = _ideal_block(k0, k1, i, period, total, t_end, dur, pspd, owner, offs, mlen, gs, ge, garc, ga1, ga2, gc1,
-                             gc2, gr, gt0, gssw, prev, blk, counts)
+            i = _ideal_block(k0, k1, i, period, total, n - 1, t_end, dur, pspd, owner, offs, mlen, gs, ge, garc, ga1,
+                             ga2, gc1, gc2, gr, gt0, gssw, prev, blk, counts)
         blk[max(k1 - k0, 0):nb] = 0.0  # after the interpolator's last sample: no increment
         for f in range(nf):
             _average_block(k0, nb, blk, lens[f], nin[f], ring[f], csum[f], slot[f])
@@ -881,7 +1013,8 @@ _Pieces = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDA
                 NDArray[np.float64], NDArray[np.float64]]
 
 
-def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float) -> _Pieces:
+def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float,
+            hold_s: NDArray[np.float64] | None = None) -> _Pieces:
     """Split moves into zones with their speeds: slow zones before and after each junction.
 
     A zone long enough for the filters to finish the speed change before the
@@ -889,7 +1022,8 @@ def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[n
     at its own speed. Moves too short for zones run at the slowest speed that
     touches them. A junction whose speed is 0 (an exact stop, tolerance 0) is a
     dwell of one filter span at the vertex: the filters then stop the axes
-    there and the path passes through the vertex exactly.
+    there and the path passes through the vertex exactly. A move with a stand-still
+    ``hold_s > 0`` (a zero-length inverse-time block) is one piece of speed 0 lasting that long.
 
     Returns
     -------
@@ -915,6 +1049,11 @@ def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[n
     with np.errstate(divide="ignore", invalid="ignore"):
         durs = np.where(lens > 0, lens / spds, 0.0)
     durs[:, 3] = np.where(stop_after, span_s, 0.0)
+    if hold_s is not None and np.any(hold_s > 0.0):
+        still = hold_s > 0.0
+        spds[still, 1] = 0.0
+        durs[still, 1] = hold_s[still]
+        move_len = np.where(still, 1.0, move_len)  # any length: the position is the fraction 0 of a point
     offs = np.concatenate([np.zeros((n, 1)), np.cumsum(lens, axis=1)[:, :3]], axis=1)
     owner = np.repeat(np.arange(n), 4).reshape(n, 4)
     keep = durs > 0

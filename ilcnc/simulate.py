@@ -165,13 +165,22 @@ def simulate_program(
         sources = ErrorSources.from_profile(profile)
     path = PathGeometry.from_moves(target.moves)
     rapid = target.moves.kind == MOVE_RAPID
+    # the search reaches as far along the path as the machine lags behind its reference (contour.py): the
+    # reference may leave its move by the corner tolerance, and a compensated program's moves lie off the
+    # drawing's by their corrections
+    slack: Any = profile.planner.corner_tolerance_mm
+    if against is not None:
+        off = np.maximum(np.linalg.norm(program.moves.start_mm - target.moves.start_mm, axis=1),
+                         np.linalg.norm(program.moves.end_mm - target.moves.end_mm, axis=1))
+        slack = slack + np.nan_to_num(off)
+    reach = {"reference_mm": ref.pos_mm, "reference_slack_mm": slack}
     shares: dict[str, dict[str, float]] = {}
     if sources.enabled:
         t0 = time.perf_counter()
         if progress:
             progress("errors")
         # the dynamic share: the contour error of the drives alone
-        err_dyn = contour_error(path, act, ref.move)
+        err_dyn = contour_error(path, act, ref.move, **reach)
         _feed, shares["dynamic"], _w = _feed_stats(ref.move, rapid, err_dyn.dist_mm)
         del err_dyn
         disp = sources.displacements_mm(act, ref.command, program, target, ref.line)
@@ -183,7 +192,7 @@ def simulate_program(
     t0 = time.perf_counter()
     if progress:
         progress("contour")
-    err = contour_error(path, act, ref.move)  # the hint: the reference's move (clipped to >= 0 there)
+    err = contour_error(path, act, ref.move, **reach)  # the hint: the reference's move (clipped to >= 0 there)
     timings["contour"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     feed, stats, worst = _feed_stats(ref.move, rapid, err.dist_mm)

@@ -598,3 +598,129 @@ def test_compiled_search_equals_numpy_path_on_helices_and_planes(monkeypatch):
     for w in (0, 1, 3):
         a, c = _both_paths(monkeypatch, path, pts, seg, window=w)
         _assert_same_error(a, c)
+
+
+# ---------------------------------------------------------------------------------------------
+# the reach: a window of path length (issue 5)
+# ---------------------------------------------------------------------------------------------
+
+
+def _lagging_corner(step=0.005, leg=2.0, lag_periods=60.0):
+    """A corner of short segments (one per period) and a machine lagging ~60 segments behind it.
+
+    The reference runs X0 Y0 -> X2 -> Y2 one ``step`` per period and stops; the actual is its first-order lag
+    (time constant ``lag_periods``), which cuts the corner. Returns the path, the reference, the actual, the
+    hint (the reference's segment) and the exact distance to the two legs (computed independently).
+    """
+    s = np.arange(1, round(leg / step) + 1) * step
+    v = np.vstack([[0.0, 0.0], np.column_stack([s, 0.0 * s]), np.column_stack([np.full_like(s, leg), s])])
+    path = PathGeometry.from_polyline(v)
+    k = np.minimum(np.arange(int(3 * len(s))), len(v) - 1)
+    ref = np.column_stack([v[k], np.zeros(k.size)])
+    hint = np.minimum(k, len(path) - 1)  # the reference is the start of segment k (the end of the last one)
+    act = np.empty_like(ref)
+    act[0] = ref[0]
+    for i in range(1, k.size):
+        act[i] = act[i - 1] + (ref[i] - act[i - 1]) / lag_periods
+    exact = np.full(k.size, np.inf)
+    for a, b in (((0.0, 0.0), (leg, 0.0)), ((leg, 0.0), (leg, leg))):
+        a, b = np.array(a), np.array(b)
+        d = b - a
+        t = np.clip((act[:, :2] - a) @ d / (d @ d), 0.0, 1.0)
+        exact = np.minimum(exact, np.linalg.norm(act[:, :2] - (a + t[:, None] * d), axis=1))
+    return path, ref, act, hint, exact
+
+
+@pytest.mark.parametrize("kernel", [True, False])
+def test_reach_finds_the_corner_the_segment_window_is_trapped_at(monkeypatch, kernel):
+    """Issue 5: the machine lags ~60 short segments; the window of 3 segments and its walk stop at a local
+    minimum on the second leg (like seed 000's corner: 0.192 mm instead of 0.109 mm); the reach does not."""
+    import ilcnc.contour as contour_mod
+
+    monkeypatch.setattr(contour_mod, "_USE_KERNEL", kernel)
+    path, ref, act, hint, exact = _lagging_corner()
+    trapped = contour_error(path, act, hint)
+    assert trapped.dist_mm.max() > 2.0 * exact.max()  # 0.229 mm against 0.109 mm
+    assert np.count_nonzero(np.abs(trapped.dist_mm - exact) > 1e-9) > 10
+    err = contour_error(path, act, hint, reference_mm=ref)
+    np.testing.assert_allclose(err.dist_mm, exact, rtol=0.0, atol=1e-12)
+    assert err.walked == 0  # the reach covers the lag: nothing is left to walk
+    # 2 columns are X, Y as for the actual; a reach of 2 |r - q| is short around the right angle, 2 sqrt(2) is not
+    # (the bound of contour_error's notes)
+    np.testing.assert_array_equal(contour_error(path, act[:, :2], hint, reference_mm=ref[:, :2]).dist_mm, err.dist_mm)
+    long_enough = contour_error(path, act, hint, reference_mm=ref, reach_factor=2.0 * math.sqrt(2.0), max_walk=0)
+    np.testing.assert_allclose(long_enough.dist_mm, exact, rtol=0.0, atol=1e-12)
+
+
+def test_reach_range_is_the_path_length_around_the_hint(monkeypatch):
+    """The searched range: the window, widened to every segment within L = factor (|r - q| + slack) of path."""
+    import ilcnc.contour as contour_mod
+
+    # 10 segments of 1 mm, then 10 of 0.1 mm; the sample sits on segment 12 (s = 10.25), 0.05 mm off the path
+    v = np.concatenate([np.arange(0.0, 10.0), 10.0 + 0.1 * np.arange(0, 11)])
+    path = PathGeometry.from_polyline(np.column_stack([v, np.zeros_like(v)]))
+    np.testing.assert_allclose(path.cum_length_mm, np.concatenate([[0.0], np.cumsum(path.length_mm)]))
+    q = np.array([[10.25, 0.05, 0.0]])
+    for kernel in (True, False):
+        monkeypatch.setattr(contour_mod, "_USE_KERNEL", kernel)
+        # hint 19 (s = 10.9 .. 11.0): the window 16 .. 19 misses segment 12, the walk is off
+        far = contour_error(path, q, 19, window=1, max_walk=0)
+        assert far.seg[0] == 18
+        # |r - q| = 0.05: L = 4 (0.05 + 0.08) = 0.52 mm reaches back to s = 10.38 from s(19) = 10.9: segment 13
+        short = contour_error(path, q, 19, window=1, max_walk=0, reference_mm=[[10.3, 0.05, 0.0]],
+                              reference_slack_mm=0.08)
+        assert short.seg[0] == 13
+        # L = 4 (0.05 + 0.125) = 0.7 mm reaches s = 10.2: segment 12, the foot
+        near = contour_error(path, q, 19, window=1, max_walk=0, reference_mm=[[10.3, 0.05, 0.0]],
+                             reference_slack_mm=0.125)
+        assert near.seg[0] == 12 and near.dist_mm[0] == pytest.approx(0.05, abs=1e-12)
+        # the slack per segment, taken at the hint
+        slack = np.zeros(len(path))
+        slack[19] = 0.125
+        per_seg = contour_error(path, q, 19, window=1, max_walk=0, reference_mm=[[10.3, 0.05, 0.0]],
+                                reference_slack_mm=slack)
+        assert per_seg.seg[0] == 12
+        slack[19], slack[18] = 0.0, 0.125
+        assert contour_error(path, q, 19, window=1, max_walk=0, reference_mm=[[10.3, 0.05, 0.0]],
+                             reference_slack_mm=slack).seg[0] == 16  # L = 0.2 mm: back to 16 (s = 10.6 .. 10.7)
+        # a NaN reference: the window only
+        nan = contour_error(path, q, 19, window=1, max_walk=0, reference_mm=[[np.nan, 0.0, 0.0]])
+        assert nan.seg[0] == far.seg[0] and nan.dist_mm[0] == far.dist_mm[0]
+    with pytest.raises(ValueError, match="reference_mm"):
+        contour_error(path, q, 19, reference_mm=np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="reference_slack_mm"):
+        contour_error(path, q, 19, reference_mm=q, reference_slack_mm=np.zeros(3))
+
+
+@pytest.mark.parametrize("lag", [0.4, -0.4, 3.0])
+def test_compiled_search_equals_numpy_path_with_the_reach(monkeypatch, lag):
+    # spirals, helices and lines; the reference lag mm of path ahead of (or behind) each sample's foot, so that the
+    # ranges vary from the window to ~100 segments and some still end at the foot's side and walk
+    prog = read_program(CONTOUR / "Gates_combined_R12.nc")
+    path = PathGeometry.from_moves(prog.moves)
+    rng = np.random.default_rng(13)
+    pts = _points_near(path, 2000, rng, max_off=0.05)
+    full = _exhaustive(path, pts)
+    length = np.where(path.active, path.length_mm, 0.0)
+    cum = np.concatenate([[0.0], np.cumsum(length)])
+    s = cum[full.seg] + (full.u - full.seg) * length[full.seg]
+    hint = np.clip(np.searchsorted(cum, s + lag, side="right") - 1, 0, len(path) - 1)
+    ref = path.point_at(hint, np.clip((s + lag - cum[hint]) / np.where(length[hint] > 0, length[hint], 1.0), 0, 1))
+    # the reference on the path: without a walk the reach finds the nearest point of the whole path (the
+    # exhaustive search) but where the path reverses between foot and reference (beyond the 120 degrees of its
+    # bound: 1 sample in 2000 at lag 0.4); the window of 3 segments misses more (its range is a part of the reach's)
+    reach = contour_error(path, pts, hint, reference_mm=ref, max_walk=0)
+    window = contour_error(path, pts, hint, max_walk=0)
+    assert np.all(reach.dist_mm >= full.dist_mm - 1e-12) and np.all(reach.dist_mm <= window.dist_mm + 1e-12)
+    exact_reach = np.count_nonzero(np.isclose(reach.dist_mm, full.dist_mm, rtol=1e-9, atol=1e-12))
+    exact_window = np.count_nonzero(np.isclose(window.dist_mm, full.dist_mm, rtol=1e-9, atol=1e-12))
+    assert exact_reach >= 1996 and exact_window < exact_reach
+    ref[rng.random(len(ref)) < 0.5] += 0.5 * (rng.random((1, 3)) - 0.5)  # half the references off, some ranges short
+    pts[7] = np.nan  # a NaN sample: no foot
+    ref[8] = np.nan  # a NaN reference: the window only
+    for w in (0, 2, 3):
+        for factor, slack in ((4.0, 0.0), (1.0, 0.01), (2.0, rng.random(len(path)) * 0.2)):
+            a, b = _both_paths(monkeypatch, path, pts, hint, window=w, chunk=1024, reference_mm=ref,
+                               reach_factor=factor, reference_slack_mm=slack)
+            _assert_same_error(a, b)
+    assert np.isnan(b.dist_mm[7]) and b.seg[7] == -1

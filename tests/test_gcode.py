@@ -10,7 +10,16 @@ import pytest
 from ilcnc.errors import ProgramError, UnsupportedError
 from ilcnc.program import read_program
 from ilcnc.program.gcode import read_gcode
-from ilcnc.program.model import FLAG_MACHINE, FLAG_REPEATED, MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, STYLE_LITERAL
+from ilcnc.program.model import (
+    FLAG_MACHINE,
+    FLAG_REPEATED,
+    MOVE_ARC_CCW,
+    MOVE_ARC_CW,
+    MOVE_LINE,
+    MOVE_RAPID,
+    SPAN_LAZY,
+    STYLE_LITERAL,
+)
 
 from .conftest import OWN, SAMPLES, sample_files
 
@@ -228,3 +237,71 @@ def test_compiled_scanner_on_edge_cases() -> None:
     keep[[10, 11]] = False
     assert np.array_equal(slow_a[keep], slow_b[keep])
     assert np.array_equal(a[keep & ~slow_b], b[keep & ~slow_b], equal_nan=True)
+
+
+# -- path control (G61, G61.1, G64) and inverse time (G93) ------------------------------------------
+
+
+def test_path_control_modes_set_the_blend_tolerance_of_the_following_moves() -> None:
+    prog = _read("G21 G90\nG0 X0 Y0\nG1 X1 F100\nG61\nX2\nG61.1 X3\nG64\nX4\nG64 P0.05 Q0.01\nX5\nG64 P0 X6\n"
+                 "G64 P-1\nX7\nG20 G64 P0.002\nX0.5\nG64 P0.001 G21\nX9\nM2\n")
+    tol = prog.moves.blend_tol_mm
+    assert np.isnan(tol[:2]).all()  # no program setting: the profile's tolerance applies
+    assert tol[2:].tolist() == [0.0, -1.0, np.inf, 0.05, np.inf, np.inf, 0.002 * 25.4, 0.001]
+    assert prog.n_commands == 9  # Q (LinuxCNC's naive-CAM merging) is read and ignored: nothing is merged
+
+
+def test_path_control_refused_with_cutter_compensation_as_linuxcnc_does() -> None:
+    prog = _read("G21 G90\nG0 X0 Y0\nG41 D1 G1 X1 F100\nG64 P0.01\nX2\nM2\n")
+    assert prog.unsupported is not None and prog.unsupported[0] == 4
+    assert "cutter radius compensation" in prog.unsupported[1]
+    assert _read("G21 G90\nG0 X0 Y0\nG41 D1 G1 X1 F100\nG40 G64 P0.01\nX2\nM2\n").unsupported is None
+    assert "path control" in _read("G21\nG61 G64\nM2\n").unsupported[1]
+
+
+def test_inverse_time_blocks_carry_their_programmed_time() -> None:
+    prog = _read("G21 G90\nG0 X0 Y0\nG1 X1 F100\nG93 G1 X2 F30\nG1 X2 F120\nG2 X3 Y1 I0.5 J0.5 F60\nG0 X0\n"
+                 "G94 G1 X1 F100\nM2\n")
+    bt = prog.moves.block_time_s
+    assert np.isnan(bt[[0, 1, 5, 6]]).all()  # rapids and G94 feed moves
+    assert bt[2:5].tolist() == [2.0, 0.5, 1.0]  # 60 / F s, the zero-length block too
+    assert prog.moves.feed_mm_min[3] == 0.0
+
+
+def _read_general_only(text: str, monkeypatch: pytest.MonkeyPatch):
+    """Read with every line through the general lexer and interpreter (no vectorised plain-block runs)."""
+    from ilcnc.program import gcode
+
+    def all_slow(text, data, n, line_start, path, *, force=None):
+        return np.full((n, 9), np.nan), np.ones(n, dtype=bool)
+
+    with monkeypatch.context() as mp:
+        mp.setattr(gcode, "_classify", all_slow)
+        return _read(text)
+
+
+def test_fast_path_equals_general_path_with_path_control_and_inverse_time(monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(9)
+    modes = ["G61", "G61.1", "G64", "G64 P0.02 Q0.01", "G20 G64 P0.001", "G21", "G93", "G94"]
+    lines = ["G21 G90", "G0 X0 Y0 Z1", "G1 Z0 F500"]
+    inverse = False
+    for k in range(300):
+        if k % 17 == 0:
+            mode = modes[(k // 17) % len(modes)]
+            inverse = {"G93": True, "G94": False}.get(mode, inverse)
+            lines.append(mode)
+        x, y = rng.uniform(-20, 20, 2)
+        feed = inverse or k % 5 == 0 or k % 17 == 1  # G93 needs F in every feed block
+        lines.append(f"G1 X{x:.3f} Y{y:.3f}" + (f" F{rng.uniform(50, 900):.1f}" if feed else ""))
+    lines.append("M2")
+    text = "\n".join(lines) + "\n"
+    fast = _read(text)
+    slow = _read_general_only(text, monkeypatch)
+    assert fast.unsupported is None and slow.unsupported is None
+    a, b = fast.moves, slow.moves
+    assert len(a) == len(b) > 290
+    assert np.count_nonzero(a.insert_at == SPAN_LAZY) > 100 and not np.any(b.insert_at == SPAN_LAZY)  # both paths ran
+    assert np.isfinite(a.block_time_s).any() and (a.blend_tol_mm == 0.0254).any() and np.isinf(a.blend_tol_mm).any()
+    for name in ("kind", "line", "command", "flags", "plane", "unit_mm", "start_mm", "end_mm", "feed_mm_min",
+                 "blend_tol_mm", "block_time_s"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)

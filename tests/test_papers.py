@@ -14,10 +14,6 @@ for seed 000 ``learning.correction_bound_mm`` 10 (the derivative term kicks mm-s
 Stand-ins for patches outside the files these tests may change (both in docs/papers.md), each with a strict xfail
 that shows what the product does without it (and fails once the patch lands, to remove the stand-in):
 
-* ``paper_loop`` (contour.py) -- ``ilcnc.contour.contour_error`` with a window of 250 segments and 1000 walks instead
-  of 3 and 32: the default window is counted in segments, and on 1-ms blocks the machine lags 90 (seed 000) to 1200
-  (seed 003) segments behind its reference; at seed 000's corner the search is trapped on the second leg (0.192 mm
-  instead of 0.109 mm, :func:`test_seed000_default_contour_window_misses_the_corner`).
 * ``desired_direction`` -- the cross-coupled controller takes θ from the desired contour (as in seed 003's Fig. 2,
   where the CCC sees x_r, y_r and the ILC input is added after it) instead of from the corrected reference it runs,
   whose 1-ms steps the corrections tilt by tens of degrees (:func:`test_seed003_ccc_with_theta_of_the_corrected_reference`).
@@ -49,9 +45,6 @@ CONFIGS = REPO / "configs"
 SEED000 = "seed000-hendrawan-mass-damper-pid.yaml"
 SEED003 = "seed003-li-cross-coupled.yaml"
 PERIOD_S = 0.001
-#: Contour-error search of the ``paper_loop`` stand-in (segments each side, walks).
-WIDE_WINDOW = 250
-WIDE_WALK = 1000
 
 # seed 000 §III: max contour error of the feedback controller and of the EILCC with ACE after 3 updates
 S000_BASELINE_MM = 0.1082
@@ -133,23 +126,6 @@ def _epsilon(profile: MachineProfile, axis: str, kp: float, kd: float, eta: int,
     return float(np.max(np.abs(1.0 - z**eta * g * k)))
 
 
-@contextmanager
-def _paper_loop() -> Iterator[None]:
-    """Stand-in for the contour.py patch: a contour-error search that reaches the machine's lag (module docstring)."""
-    import ilcnc.contour as contour
-
-    original = contour.contour_error
-
-    def wide(path, actual_mm, hint_seg, **kw):  # same signature as the original
-        kw.setdefault("window", WIDE_WINDOW)
-        kw.setdefault("max_walk", WIDE_WALK)
-        return original(path, actual_mm, hint_seg, **kw)
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(contour, "contour_error", wide)
-        yield
-
-
 def _desired_normals(direction: tuple[float, float]) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
     """``path_normals`` of a CCC that takes θ from a desired straight contour of the given direction."""
     t = np.asarray(direction, dtype=np.float64) / math.hypot(*direction)
@@ -167,12 +143,6 @@ def _desired_direction() -> Iterator[None]:
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(drives, "path_normals", _desired_normals((1.0, 1.0)))
-        yield
-
-
-@pytest.fixture
-def paper_loop() -> Iterator[None]:
-    with _paper_loop():
         yield
 
 
@@ -199,28 +169,24 @@ def _s000(**learning: object) -> MachineProfile:
 @pytest.fixture(scope="module")
 def s000_ace(corner: Program) -> LearnResult:
     """The paper's gains (K_Pl 0.468, K_Il 0, K_Dl 0.0443, η 0), ACE, 3 updates as printed (no guard)."""
-    with _paper_loop():
-        return learn_virtual(corner, _s000(error="contour"), iterations=3, guard=False, stop_on_stall=False)
+    return learn_virtual(corner, _s000(error="contour"), iterations=3, guard=False, stop_on_stall=False)
 
 
 @pytest.fixture(scope="module")
 def s000_tangent(corner: Program) -> LearnResult:
     """The same with the Frenet-frame estimate (the paper's "EILCC without ACE")."""
-    with _paper_loop():
-        return learn_virtual(corner, _s000(error="tangent"), iterations=3, guard=False, stop_on_stall=False)
+    return learn_virtual(corner, _s000(error="tangent"), iterations=3, guard=False, stop_on_stall=False)
 
 
-@pytest.mark.xfail(strict=True, reason="contour.py: the default window (3 segments, 32 walks) is trapped on the second"
-                   " leg of a corner of 1-ms blocks; remove this xfail and the window stand-in with the fix")
-def test_seed000_default_contour_window_misses_the_corner(corner: Program) -> None:
+def test_seed000_contour_error_reaches_the_lagging_machine_at_the_corner(corner: Program) -> None:
     prof = _s000()
     sim = simulate_program(corner, prof)
     exact = _polyline_distance(sim.actual_mm[:, :2], np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]))
-    # measured with the default window: 0.19223 mm against the exact 0.10897 mm
+    # the machine lags ~90 one-ms blocks; a search window of 3 segments found 0.19223 mm, the exact is 0.10897 mm
     assert sim.stats["max"] == pytest.approx(float(exact.max()), abs=1e-6)
 
 
-def test_seed000_feedback_only_matches_the_paper(corner: Program, paper_loop: None) -> None:
+def test_seed000_feedback_only_matches_the_paper(corner: Program) -> None:
     prof = _s000()
     sim = simulate_program(corner, prof)
     exact = _polyline_distance(sim.actual_mm[:, :2], np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]))
@@ -282,7 +248,7 @@ def _tuned_gains(prof: MachineProfile) -> dict[str, object]:
     return {"kp": kp, "kd": kd, "ki": 0.0, "lead_samples": 1}
 
 
-def test_seed000_tuned_gains_beat_the_paper(corner: Program, paper_loop: None) -> None:
+def test_seed000_tuned_gains_beat_the_paper(corner: Program) -> None:
     gains = _tuned_gains(_s000())
     prof = _s000(error="contour", gains=gains)
     for a in ("x", "y"):
@@ -297,7 +263,7 @@ def test_seed000_tuned_gains_beat_the_paper(corner: Program, paper_loop: None) -
     assert r.reduction("max") > S000_ACE_REDUCTION
 
 
-def test_seed000_tune_gains(corner: Program, paper_loop: None) -> None:
+def test_seed000_tune_gains(corner: Program) -> None:
     """Issue 7's ``tune`` finds the optimum of eq. (28); its gains beat the paper at every one of 3 updates."""
     tune = pytest.importorskip("ilcnc.tune")
     design = tune.design_time_domain(_s000())
@@ -314,7 +280,7 @@ def test_seed000_tune_gains(corner: Program, paper_loop: None) -> None:
     assert all(_reduction(r, i) > S000_ACE_REDUCTION for i in (1, 2, 3))
 
 
-def test_seed000_guarded_run(corner: Program, s000_ace: LearnResult, paper_loop: None) -> None:
+def test_seed000_guarded_run(corner: Program, s000_ace: LearnResult) -> None:
     r = learn_virtual(corner, _s000(error="contour"), iterations=5, guard=True, stop_on_stall=False)
     # the guard keeps the paper's three updates unchanged ...
     assert [rec.kept for rec in r.iterations[:4]] == [True] * 4
@@ -353,7 +319,7 @@ def test_seed003_condition_three(line: Program) -> None:
 
 
 def test_seed003_printed_law_on_the_program_without_the_ccc_map_diverges(
-    line: Program, paper_loop: None, desired_direction: None
+    line: Program, desired_direction: None
 ) -> None:
     """Why ``make_law`` gives the law the CCC's error map: without it the correction meets D·M, not D."""
     prof = _profile(SEED003)
@@ -380,7 +346,7 @@ def test_seed003_gains_breaking_condition_three_are_refused(line: Program, gains
 
 @pytest.mark.parametrize("ccc", [False, True])
 def test_seed003_d_type_learns_on_the_error_change_its_correction_causes(
-    line: Program, paper_loop: None, desired_direction: None, ccc: bool
+    line: Program, desired_direction: None, ccc: bool
 ) -> None:
     """The forward difference over the command time stamps is the right derivative (eq. 4).
 
@@ -411,7 +377,7 @@ def test_seed003_d_type_learns_on_the_error_change_its_correction_causes(
 @pytest.fixture(scope="module")
 def s003_runs(line: Program) -> dict[str, LearnResult]:
     """The paper's P-type law (P1 = I, Q1 = diag(0.5, 0.6)), tracking error, 10 iterations, with and without CCC."""
-    with _paper_loop(), _desired_direction():
+    with _desired_direction():
         return {name: learn_virtual(line, _profile(SEED003, ccc=ccc), iterations=10, guard=False, stop_on_stall=False)
                 for name, ccc in (("ccc", True), ("independent", False))}
 
@@ -432,7 +398,7 @@ def test_seed003_ccc_is_smaller_at_every_iteration_and_does_not_oscillate(s003_r
     assert ccc[-1] < 0.75 * ccc[0] and ind[-1] < 0.2 * ind[0]
 
 
-def test_seed003_second_order_law(line: Program, paper_loop: None, desired_direction: None) -> None:
+def test_seed003_second_order_law(line: Program, desired_direction: None) -> None:
     # P1 + P2 = I, Q1 = P1·D⁻¹: ‖P1 - Q1 D‖ + ‖P2 - Q2 D‖ = 0 + 0.2 (a "momentum" of -0.2 on U_{i-1})
     gains = {"p1": 1.2, "p2": -0.2, "q1": {"x": 0.6, "y": 0.8}, "q2": 0.0}
     prof = _profile(SEED003, gains=gains)
@@ -449,7 +415,7 @@ def test_seed003_second_order_law(line: Program, paper_loop: None, desired_direc
 
 @pytest.mark.xfail(strict=True, reason="drives.py: the CCC takes θ from the corrected reference, whose 1-ms steps the"
                    " corrections tilt; remove this xfail and the desired_direction stand-in with the fix")
-def test_seed003_ccc_with_theta_of_the_corrected_reference(line: Program, paper_loop: None) -> None:
+def test_seed003_ccc_with_theta_of_the_corrected_reference(line: Program) -> None:
     r = learn_virtual(line, _profile(SEED003), iterations=3, guard=False, stop_on_stall=False)
     m = _max(r)
     # measured: 0.02044, 0.01953, 0.05550, 0.25619 mm (1.12 mm by iteration 7)

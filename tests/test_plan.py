@@ -70,15 +70,19 @@ def test_single_move_matches_ruckig() -> None:
     assert np.max(np.abs(ours - theirs)) < 0.06  # mm: one servo tick of phase at 50 mm/s
 
 
+def _corner_deviation(p: np.ndarray, x: float = 50.0) -> float:
+    """Largest distance of the points from the corner X0 Y0 -> X``x`` -> Y.. (mm)."""
+    # distance to the two legs of the corner (x axis, then the line x = ``x``)
+    d1 = np.where(p[:, 0] <= x, np.abs(p[:, 1]), np.hypot(p[:, 0] - x, p[:, 1]))
+    d2 = np.where(p[:, 1] >= 0, np.abs(p[:, 0] - x), np.hypot(p[:, 0] - x, p[:, 1]))
+    return float(np.minimum(d1, d2).max())
+
+
 def test_corner_never_cut_by_more_than_the_tolerance() -> None:
     prog = _prog("G21 G90\nG0 X0 Y0 Z0\nG1 X50 F3000\nY50\nM2\n")
     for tol in (0.005, 0.05, 0.5):
         ref = plan_moves(prog.moves, _limits(), period_s=0.001, corner_tolerance_mm=tol)
-        p = ref.pos_mm
-        # distance to the two legs of the corner (x axis, then the line x = 50)
-        d1 = np.where(p[:, 0] <= 50, np.abs(p[:, 1]), np.hypot(p[:, 0] - 50, p[:, 1]))
-        d2 = np.where(p[:, 1] >= 0, np.abs(p[:, 0] - 50), np.hypot(p[:, 0] - 50, p[:, 1]))
-        dev = np.minimum(d1, d2).max()
+        dev = _corner_deviation(ref.pos_mm)
         assert dev <= tol * (1 + 1e-6)
         assert dev >= 0.5 * tol  # and the speed was not lowered more than needed
 
@@ -145,6 +149,9 @@ def _assert_same_reference(a, b) -> None:
     "G21 G90\nG0 X0 Y0 Z0\nG1 X5 F3000\nX4\nX5\nX4.5\nY1\nM2\n",  # reversals: limits hit, groups planned again
     "G21 G90\nG0 X0 Y0 Z0\nG1 X5 F3000\nY0.2\nX0\nY0.4\nX5\nY0.6\nX0\nG0 Z5\nX20\nG1 Z0 F600\nX25\nM2\n",
     "G21 G90 G17\nG0 X25 Y0 Z0\nG2 X25 Y0 Z-2 I-25 J0 P2 F3000\nG18 G3 X35 Z-2 I5 K0\nG19 G2 Y5 Z3 J2.5 K2.5\nM2\n",
+    # path control per move, and an inverse-time stand-still
+    "G21 G90\nG0 X0 Y0 Z0\nG61\nG1 X5 F3000\nY1\nG61.1 X6\nX7\nG64\nY0\nX0.5\nG64 P0.002 Y0.3\nX3\nG2 X5 Y0.3 R1\n"
+    "G93 G1 X5 F3000\nX5.5 F6000\nY3 F60000\nM2\n",
 ])
 @pytest.mark.parametrize("mode", ["seven_phase", "cubic", "constant_feed"])
 @pytest.mark.parametrize("tol", [0.0, 0.01, 0.5])
@@ -179,3 +186,147 @@ def test_position_array_grows_when_replanning_outgrows_its_estimate(monkeypatch:
     monkeypatch.setattr(plan, "_reserve", spy)
     _assert_same_reference(plan_moves(moves, _limits(), period_s=0.001), ref)
     assert any(grown)
+
+
+# -- the program's path control (G61, G61.1, G64 [P]) -----------------------------------------
+
+
+def _speed_mm_s(ref) -> np.ndarray:
+    """Path speed at every sample (backward difference; 0 at the first), mm/s."""
+    return np.concatenate(([0.0], np.linalg.norm(np.diff(ref.pos_mm, axis=0), axis=1) / ref.period_s))
+
+
+def _at_vertex(ref, vertex: tuple[float, float]) -> tuple[float, float]:
+    """Closest approach of the reference to ``vertex`` (mm) and the lowest speed there (within 0.1 mm of it, mm/s)."""
+    d = np.hypot(ref.pos_mm[:, 0] - vertex[0], ref.pos_mm[:, 1] - vertex[1])
+    return float(d.min()), float(_speed_mm_s(ref)[d < d.min() + 0.1].min())
+
+
+def test_g61_stops_at_every_corner_whatever_the_profile_tolerance() -> None:
+    square = "G1 X20 F3000\nY20\nX0\nY0\nM2\n"
+    exact = plan_moves(_prog("G21 G90\nG0 X0 Y0 Z0\nG61\n" + square).moves, _limits(), period_s=0.001,
+                       corner_tolerance_mm=0.5)
+    for vertex in ((20, 0), (20, 20), (0, 20)):
+        dist, v_min = _at_vertex(exact, vertex)
+        assert dist < 1e-9 and v_min < 1e-6  # on the vertex, at rest
+    blended = plan_moves(_prog("G21 G90\nG0 X0 Y0 Z0\nG64 P0.5\n" + square).moves, _limits(), period_s=0.001,
+                         corner_tolerance_mm=0.0)  # the program's P beats the profile's exact stop
+    for vertex in ((20, 0), (20, 20), (0, 20)):
+        dist, v_min = _at_vertex(blended, vertex)
+        assert 0.25 < dist < 0.6 and v_min > 20.0
+    assert exact.duration_s > blended.duration_s + 0.1
+
+
+def test_g61_passes_tangent_joins_and_g61_1_stops_there_too() -> None:
+    text = "G21 G90\nG0 X0 Y0 Z0\n{mode}\nG1 X10 F3000\nX20\nM2\n"
+    path = plan_moves(_prog(text.format(mode="G61")).moves, _limits(), period_s=0.001)
+    stop = plan_moves(_prog(text.format(mode="G61.1")).moves, _limits(), period_s=0.001)
+    assert _at_vertex(path, (10, 0))[1] > 49.0
+    dist, v_min = _at_vertex(stop, (10, 0))
+    assert dist < 1e-9 and v_min < 1e-6
+    assert stop.duration_s > path.duration_s + 0.05
+
+
+def test_g64_p_bounds_the_corner_deviation() -> None:
+    text = "G21 G90\nG0 X0 Y0 Z0\nG64 P{p}\nG1 X50 F3000\nY50\nM2\n"
+    refs = {}
+    for p in (0.001, 0.05):
+        # the program's tolerance, not the profile's, whichever is larger
+        refs[p] = ref = plan_moves(_prog(text.format(p=p)).moves, _limits(), period_s=0.001, corner_tolerance_mm=0.3)
+        dev = _corner_deviation(ref.pos_mm)
+        assert 0.5 * p <= dev <= p * (1 + 1e-6)
+    assert refs[0.001].duration_s > refs[0.05].duration_s + 0.01
+
+
+def test_g64_without_p_blends_at_least_as_much_as_any_p() -> None:
+    text = "G21 G90\nG0 X0 Y0 Z0\n{mode}\nG1 X50 F3000\nY50\nM2\n"
+    free = plan_moves(_prog(text.format(mode="G64")).moves, _limits(), period_s=0.001, corner_tolerance_mm=0.001)
+    dev_free = _corner_deviation(free.pos_mm)
+    for p in (0.001, 0.05, 0.5, 5.0):
+        ref = plan_moves(_prog(text.format(mode=f"G64 P{p}")).moves, _limits(), period_s=0.001)
+        assert dev_free >= _corner_deviation(ref.pos_mm) * (1 - 1e-9)
+        assert free.duration_s <= ref.duration_s
+    assert dev_free > 0.4  # the corner at full speed: only the axes' acceleration bounds the blend
+    assert _at_vertex(free, (50, 0))[1] > 30.0  # 50 mm/s along the legs, 50/sqrt(2) at the bisector
+    # G64 P0 is G64 without P (LinuxCNC: tolerance 0 = no tolerance)
+    p0 = plan_moves(_prog(text.format(mode="G64 P0")).moves, _limits(), period_s=0.001, corner_tolerance_mm=0.001)
+    np.testing.assert_array_equal(p0.pos_mm, free.pos_mm)
+
+
+def test_programmed_blends_are_bounded_by_a_quarter_of_the_shorter_move(monkeypatch: pytest.MonkeyPatch) -> None:
+    # LinuxCNC's own bound (tcFindBlendTolerance): 0.5 mm legs blend by at most 0.125 mm, with or without P
+    from ilcnc import plan
+
+    text = "G21 G90\nG0 X0 Y0 Z0\n{mode}\nG1 X0.5 F3000\nY0.5\nM2\n"
+    free = plan_moves(_prog(text.format(mode="G64")).moves, _limits(), period_s=0.001)
+    assert 0.5 * 0.125 < _corner_deviation(free.pos_mm, x=0.5) <= 0.125 * (1 + 1e-6)
+    for mode in ("G64 P0.125", "G64 P3"):
+        _assert_same_reference(plan_moves(_prog(text.format(mode=mode)).moves, _limits(), period_s=0.001), free)
+    # the bound is what keeps it there: without it the corner is cut by more
+    monkeypatch.setattr(plan, "_BLEND_LENGTH_FRACTION", np.inf)
+    unbounded = plan_moves(_prog(text.format(mode="G64")).moves, _limits(), period_s=0.001)
+    assert _corner_deviation(unbounded.pos_mm, x=0.5) > 0.125
+
+
+def test_g64_p_of_an_inch_program_is_in_inch() -> None:
+    x = 50 / 25.4  # 50 mm legs, written in inch
+    text = f"G20 G90\nG0 X0 Y0 Z0\nG64 P0.002\nG1 X{x} F120\nY{x}\nM2\n"
+    ref = plan_moves(_prog(text).moves, _limits(), period_s=0.001, corner_tolerance_mm=0.5)
+    dev = _corner_deviation(ref.pos_mm)
+    assert 0.5 * 0.0508 <= dev <= 0.0508 * (1 + 1e-6)
+
+
+def test_the_move_before_a_corner_decides_and_the_smaller_tolerance_wins() -> None:
+    # the corner at the end of a move follows that move's mode (LinuxCNC: the previous segment's term_cond) ...
+    ref = plan_moves(_prog("G21 G90\nG0 X0 Y0 Z0\nG64 P0.05\nG1 X50 F3000\nG61\nY50\nX0\nM2\n").moves, _limits(),
+                     period_s=0.001)
+    first = ref.pos_mm[:, 1] < 25.0
+    assert 0.025 <= _corner_deviation(ref.pos_mm[first]) <= 0.05 * (1 + 1e-6)  # blended
+    assert _at_vertex(ref, (50, 0))[1] > 1.0
+    dist, v_min = _at_vertex(ref, (50, 50))
+    assert dist < 1e-9 and v_min < 1e-6  # stopped on the vertex
+    # ... and where both moves blend, by the smaller of their tolerances
+    ref = plan_moves(_prog("G21 G90\nG0 X0 Y0 Z0\nG64 P0.5\nG1 X50 F3000\nG64 P0.01\nY50\nM2\n").moves, _limits(),
+                     period_s=0.001)
+    assert 0.005 <= _corner_deviation(ref.pos_mm) <= 0.01 * (1 + 1e-6)
+
+
+# -- inverse time (G93) -----------------------------------------------------------------------
+
+
+def _inverse_time_line(n: int) -> str:
+    """``n`` G01 blocks of one 1-ms period each along X, 2.5 µm apart (seed 000's time-indexed reference)."""
+    xs = np.arange(1, n + 1) * 0.0025
+    return "G21 G90 G94\nG00 X0 Y0\nG93\n" + "".join(f"G01 X{x:.4f} Y0 F60000\n" for x in xs) + "M30\n"
+
+
+@pytest.mark.parametrize("kernel", [True, False])
+def test_inverse_time_blocks_give_one_sample_each_and_no_repeated_last_sample(kernel: bool) -> None:
+    from ilcnc import plan
+
+    n = 20000  # the durations sum to 20 s plus float noise: one tick more (a repeated last sample) before the fix
+    moves = _prog(_inverse_time_line(n)).moves
+    lim = PlanLimits(np.full(3, 1e6), np.full(3, 1e6), np.full(3, 1e9), np.full(3, 1e12))
+    ref = plan._plan(moves, lim, 0.001, "constant_feed", 0.01, 0.01, 0.0, 12, kernel=kernel)
+    assert ref.n_samples == n + 1  # the start, then block k ends at sample k + 1
+    np.testing.assert_allclose(ref.pos_mm[1:, 0], moves.end_mm[1:, 0], rtol=0, atol=1e-9)
+    assert np.all(np.diff(ref.pos_mm[:, 0]) > 0.0025 - 1e-9)
+    assert ref.pos_mm[-1, 0] == moves.end_mm[-1, 0]
+
+
+def test_zero_length_inverse_time_block_stands_still_for_its_time() -> None:
+    text = "G21 G90\nG0 X0 Y0 Z0\nG93\nG1 X10 F60\n{still}G1 X20 F60\nM2\n"
+    with_still = _prog(text.format(still="G1 X10 F120\n"))  # 0.5 s at X10
+    without = _prog(text.format(still=""))
+    lim = _limits()
+    ideal = plan_moves(with_still.moves, lim, period_s=0.001, mode="constant_feed", in_position_s=0.0)
+    at10 = np.abs(ideal.pos_mm[:, 0] - 10.0) < 1e-9
+    assert np.count_nonzero(at10) == 501  # arrives at 1 s, leaves after 1.5 s
+    assert ideal.duration_s == pytest.approx(2.5, abs=1e-9)
+    assert np.all(ideal.move[at10][1:] == 2)  # the stand-still is the zero-length block's
+    for mode in ("seven_phase", "cubic"):
+        a = plan_moves(with_still.moves, lim, period_s=0.001, mode=mode)
+        b = plan_moves(without.moves, lim, period_s=0.001, mode=mode)
+        assert a.duration_s == pytest.approx(b.duration_s + 0.5, abs=0.05)
+        assert np.count_nonzero(np.abs(a.pos_mm[:, 0] - 10.0) < 1e-9) >= 400
+        _assert_same_reference(a, _numpy_plan(with_still.moves, lim, mode=mode))

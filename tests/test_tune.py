@@ -2,10 +2,9 @@
 
 Measured figures are in the comments next to the assertions (2-core development machine).
 
-Stand-ins for patches outside ilcnc/tune.py (the same two as tests/test_papers.py, described there and in
-docs/papers.md): the seed 000 simulation check runs with ``_paper_loop``, a contour-error search window of 250
-segments (the default window is trapped at the corner of 1-ms blocks) and without ``keep_moves_forward`` (it limits
-each 2.5-µm block's correction to half its length, 1.25 µm).
+Stand-in for a patch outside ilcnc/tune.py (docs/papers.md): the seed 000 simulation check runs with
+``_paper_loop``, without ``keep_moves_forward`` (it limits each 2.5-µm block's correction to half its length,
+1.25 µm).
 """
 
 from __future__ import annotations
@@ -160,19 +159,10 @@ def test_no_convergent_gains_says_why(s004: MachineProfile) -> None:
 
 @contextmanager
 def _paper_loop() -> Iterator[None]:
-    """Stand-ins for the contour.py and learn.py patches (module docstring)."""
-    import ilcnc.contour as contour
+    """Stand-in for the learn.py patch (module docstring; the contour search now reaches the lag itself)."""
     import ilcnc.learn as learn
 
-    original = contour.contour_error
-
-    def wide(path, actual_mm, hint_seg, **kw):
-        kw.setdefault("window", 250)
-        kw.setdefault("max_walk", 1000)
-        return original(path, actual_mm, hint_seg, **kw)
-
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(contour, "contour_error", wide)
         mp.setattr(learn, "keep_moves_forward", lambda u, vec_mm, prev_k, **kw: u)
         yield
 

@@ -28,6 +28,10 @@ from ilcnc.errors import ProgramError
 from ilcnc.program.expr import ExprError, Parameters, read_param_ref, read_value
 from ilcnc.program.gcode_flow import has_control_flow, run_control_flow
 from ilcnc.program.model import (
+    BLEND_EXACT_PATH,
+    BLEND_EXACT_STOP,
+    BLEND_NO_BOUND,
+    BLEND_PROFILE,
     FLAG_CUTTER_COMP,
     FLAG_DERIVED,
     FLAG_HOME,
@@ -359,6 +363,7 @@ class _State:
     cycle_z: float | None = None
     cycle_p: float | None = None
     cycle_q: float | None = None
+    blend_tol: float = BLEND_PROFILE  # path control (G61, G61.1, G64 [P]) as MoveTable.blend_tol_mm, mm
 
     def offset(self) -> tuple[float, float, float]:
         o = self.g5x[self.cs]
@@ -472,6 +477,9 @@ class _Interpreter:
                 st.arc_absolute = True
             elif c == 911:
                 st.arc_absolute = False
+        path_codes = [c for c in gcodes if c in (610, 611, 640)]
+        if path_codes:
+            self._path_control(path_codes, letters, line)
         if blk.polar:
             self._polar_to_xy(letters, line)
         axis_words = [letters.get(a) for a in "XYZ"]
@@ -531,6 +539,29 @@ class _Interpreter:
             if mc in (2, 30, 60) and mc != 60:
                 self.ended = True
         self._assign(blk)
+
+    def _path_control(self, codes: list[int], letters: dict[str, Word], line: int) -> None:
+        """G61, G61.1, G64 [P] [Q]: the path control mode of the following moves (``MoveTable.blend_tol_mm``).
+
+        As LinuxCNC's interpreter (``Interp::convert_control_mode``): refused while cutter
+        compensation is on; ``P`` is the corner tolerance in program units (after this block's
+        G20/G21), a missing, zero or negative ``P`` means no tolerance (blend at the best speed).
+        ``Q`` (LinuxCNC's naive-CAM tolerance, which merges nearly collinear short G1 blocks) is
+        read and ignored: ilcnc never merges commands.
+        """
+        st = self.st
+        if len(codes) > 1:
+            raise self.error(line, "two G codes of the path control group (G61, G61.1, G64) in one block")
+        if st.cutter_comp:
+            raise self.error(line, "cannot change the path control mode with cutter radius compensation on")
+        code = codes[0]
+        if code == 610:
+            st.blend_tol = BLEND_EXACT_PATH
+        elif code == 611:
+            st.blend_tol = BLEND_EXACT_STOP
+        else:
+            pw = letters.get("P")
+            st.blend_tol = pw.value * st.unit if pw is not None and pw.value > 0 else BLEND_NO_BOUND
 
     def _cycle(self, code: int, letters: dict[str, Word], axis_words: list[Word | None], line: int) -> None:
         """Drilling cycles G73 G81 G82 G83 G85 G86 G89 in G17, as LinuxCNC executes them.
@@ -746,6 +777,7 @@ class _Interpreter:
         turns: int = 1,
         cwords: list[Word | None] | None = None,
         insert_at: int = -1,
+        block_time: float = float("nan"),
     ) -> None:
         st = self.st
         inc = not st.absolute and not (flags & FLAG_MACHINE)
@@ -769,9 +801,14 @@ class _Interpreter:
         self.builder.add(
             kind, line, start, endt, feed=feed, unit=st.unit, offset=offset, center=center, plane=plane,
             turns=turns, correctable=correctable, flags=flags, wstart=ws, wend=we, wdec=wd, wstyle=wst,
-            winc=winc, insert_at=insert_at, **kw,
+            winc=winc, insert_at=insert_at, blend_tol=st.blend_tol, block_time=block_time, **kw,
         )
         st.pos = [endt[0], endt[1], endt[2]]
+
+    def _block_time_s(self) -> float:
+        """Time an inverse-time (G93) feed move takes, ``60 / F`` s; NaN in the other feed modes."""
+        st = self.st
+        return 60.0 / st.feed if st.feed_mode == 930 and st.feed > 0 else float("nan")
 
     def _feed_mm_min(self, length_mm: float, line: int, letters: dict[str, Word]) -> float:
         st = self.st
@@ -807,7 +844,7 @@ class _Interpreter:
             feed = self._feed_mm_min(length, line, letters)
             correctable = not machine and not (flags & FLAG_PARAMETRIC) and not has_rotary
             self._add(MOVE_LINE, line, tuple(target), flags=flags, words=axis_words, offset=off, feed=feed,
-                      correctable=correctable, insert_at=blk.end_offset)
+                      correctable=correctable, insert_at=blk.end_offset, block_time=self._block_time_s())
             return
         if motion in (20, 30):
             if machine:
@@ -916,6 +953,8 @@ class _Interpreter:
                 center_style=np.where(cpresent, STYLE_LITERAL, 0).astype(np.int8),
                 center_incremental=cpresent & (not st.arc_absolute),
                 insert_at=np.full(m, SPAN_LAZY, dtype=np.int64),
+                blend_tol_mm=np.full(m, st.blend_tol),
+                # inverse-time feed (G93) never reaches this path: block_time_s stays NaN
             ))
             st.pos = [float(x) for x in mv_end[-1]]
         return count
@@ -1026,7 +1065,7 @@ class _Interpreter:
         kind = MOVE_ARC_CW if cw else MOVE_ARC_CCW
         self._add(kind, line, tuple(target), flags=flags, words=axis_words, offset=off, feed=feed,
                   center=(center[0], center[1], center[2]), plane=st.plane, turns=turns,
-                  cwords=cwords if rw is None else None, insert_at=blk.end_offset)
+                  cwords=cwords if rw is None else None, insert_at=blk.end_offset, block_time=self._block_time_s())
 
 
 def _ffill(values: np.ndarray, valid: np.ndarray, initial: float) -> np.ndarray:

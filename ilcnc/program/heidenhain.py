@@ -59,6 +59,10 @@ Conventions
   is made in them (cycles 8, 10, 11, 19, 26, ``PLANE``, ``M128``).
 * In inch programs (``BEGIN PGM .. INCH``) lengths and feeds are read as
   inch and inch/min and converted to mm and mm/min.
+* Cycle 32 (``CYCL DEF 32.0 TOLERANZ`` / ``TOLERANCE``, ``CYCL DEF 32.1 T0.02``) sets the
+  path tolerance of the moves after it (``MoveTable.blend_tol_mm``, mm; ``T0`` is an exact
+  path, stop at every corner); a ``32.1`` without ``T`` resets it to the machine's (the
+  profile's) tolerance. ``32.2`` (HSC mode, rotary tolerance ``TA``) is read and ignored.
 * Runs of plain ``L`` blocks (no M word) are read with numpy; everything
   else block by block. Both give the same table.
 """
@@ -75,6 +79,7 @@ import numpy as np
 
 from ilcnc.errors import ProgramError
 from ilcnc.program.model import (
+    BLEND_PROFILE,
     FLAG_CUTTER_COMP,
     FLAG_DERIVED,
     FLAG_MACHINE,
@@ -1065,6 +1070,8 @@ class _Lexer:
         data: Any = rest
         if sub is not None and sub >= 1 and num in (7, 10, 11, 19):
             data = self.cycle_words(num, rest)
+        elif sub == 1 and num == 32:
+            data = self.tolerance_word(rest)
         elif sub is not None and sub >= 1 and num == 8:
             axes = _comment_free(rest).split()
             for a in axes:
@@ -1094,6 +1101,17 @@ class _Lexer:
             words.append((m.group(), got[0]))
             i = _skip_ws(rest, got[5])
         return words
+
+    def tolerance_word(self, rest: str) -> Any:
+        """The ``T`` value of ``CYCL DEF 32.1`` (a number or a Q closure), None when the block has none."""
+        body = _comment_free(rest)
+        m = re.match(r"[ \t]*T(?=[ \t]*[-+0-9.,Q(]|[ \t]*$)", body)
+        if m is None:
+            return None
+        got = _scan_value(body, m.end())
+        if got is None or isinstance(got[0], str):
+            raise _Syntax("missing number after T in cycle 32.1")
+        return got[0]
 
     def check_cycle_params(self, rest: str) -> None:
         for m in re.finditer(r"\bQ\d+\s*=\s*([^\s;~]+)", _comment_free(rest)):
@@ -1472,6 +1490,8 @@ class _Interp:
         self.cycle_calls: dict[int, list] = {}
         self.stack: list[list[int]] = []
         self.pending: list | None = None
+        self.pending_tol = BLEND_PROFILE  # path tolerance when the held move was programmed
+        self.tol = BLEND_PROFILE  # cycle 32 tolerance (MoveTable.blend_tol_mm), mm
         self.corner: tuple[str, float, float, int] | None = None
         self.appr: tuple | None = None
         self.last: list | None = None
@@ -1530,7 +1550,7 @@ class _Interp:
         except _Stop as stop:
             self.unsupported = (stop.line, stop.problem)
             if self.corner is None and self.pending is not None:
-                self.add(self.pending)
+                self.add(self.pending, self.pending_tol)
             self.pending = None
         self.cycle_warnings()
 
@@ -1569,7 +1589,7 @@ class _Interp:
         if self.appr is not None:
             raise _Stop(self.appr[0], "APPR without a following contour element")
         if self.pending is not None:
-            self.add(self.pending)
+            self.add(self.pending, self.pending_tol)
             self.pending = None
 
     def warn(self, key: str, text: str) -> None:
@@ -1619,7 +1639,8 @@ class _Interp:
         self.unknown[key] = (key, why)
 
     # ---- move output --------------------------------------------------------------------------
-    def add(self, r: list) -> None:
+    def add(self, r: list, tol: float | None = None) -> None:
+        """Append move record ``r``; ``tol`` is its path tolerance (default: the one now in force)."""
         self.moved_at = self.executed
         self.n_moves += 1
         if self.n_moves > MAX_MOVES:
@@ -1630,6 +1651,7 @@ class _Interp:
             flags=r[R_FLAGS], wstart=tuple(r[R_WS]), wend=tuple(r[R_WE]), wdec=tuple(r[R_WD]),
             wstyle=tuple(r[R_WST]), winc=tuple(r[R_WI]), cstart=tuple(r[R_CS]), cend=tuple(r[R_CE]),
             cdec=tuple(r[R_CD]), cstyle=tuple(r[R_CST]), cinc=tuple(r[R_CI]), insert_at=r[R_INS],
+            blend_tol=self.tol if tol is None else tol,
         )
 
     def emit(self, r: list, hold: bool = False) -> None:
@@ -1640,12 +1662,13 @@ class _Interp:
         if self.corner is not None:
             pre = self.resolve_corner(r)
         if self.pending is not None:
-            self.add(self.pending)
+            self.add(self.pending, self.pending_tol)
             self.pending = None
         for p in pre:
             self.add(p)
         if hold:
             self.pending = r
+            self.pending_tol = self.tol
         else:
             self.add(r)
         self.last = r
@@ -1812,7 +1835,7 @@ class _Interp:
         sel = has.any(axis=1)
         m = int(sel.sum())
         if self.pending is not None:
-            self.add(self.pending)
+            self.add(self.pending, self.pending_tol)
             self.pending = None
         self.feed = float(feed[-1])
         self.rcomp = _RCOMP_NAME[int(rcomp[-1])]
@@ -1837,6 +1860,7 @@ class _Interp:
             center_start=np.full((m, 3), -1, dtype=np.int64), center_end=np.full((m, 3), -1, dtype=np.int64),
             center_decimals=np.zeros((m, 3), dtype=np.int8), center_style=np.zeros((m, 3), dtype=np.int8),
             center_incremental=np.zeros((m, 3), dtype=bool), insert_at=c["ins"][sel],
+            blend_tol_mm=np.full(m, self.tol),
         ))
         self.pos = [float(x) for x in ends_sel[-1]]
         self.last = _rec(int(kind[-1]), int(c["line"][sel][-1]), [float(x) for x in starts[-1]], list(self.pos),
@@ -2379,6 +2403,9 @@ class _Interp:
             return None
         if num == 7:
             self.datum_shift(data, line)
+        elif num == 32 and sub == 1:
+            # tolerance for the following moves; 32.1 without T resets it to the machine's
+            self.tol = BLEND_PROFILE if data is None else max(self.num(data, line), 0.0) * self.unit
         elif num == 8:
             if data:
                 self.frame["mirror"] = (line, "mirror image (cycle 8)")

@@ -68,6 +68,16 @@ PLANE_AXES: dict[int, tuple[int, int, int]] = {PLANE_XY: (0, 1, 2), PLANE_XZ: (2
 AXES = "XYZ"
 MM_PER_INCH = 25.4
 
+# Path control of a move (MoveTable.blend_tol_mm): how the planner may pass the corner at its end
+#: No setting in the program: the machine profile's ``planner.corner_tolerance_mm`` applies.
+BLEND_PROFILE = float("nan")
+#: Exact path (G-code ``G61``): stop at every corner; tangent joins are passed at speed.
+BLEND_EXACT_PATH = 0.0
+#: Exact stop (G-code ``G61.1``): stop at the end of every move, tangent or not.
+BLEND_EXACT_STOP = -1.0
+#: Blending without a tolerance (G-code ``G64`` without P, or ``G64 P0``): the best speed possible.
+BLEND_NO_BOUND = float("inf")
+
 
 @dataclass(slots=True)
 class MoveTable:
@@ -112,6 +122,19 @@ class MoveTable:
         Centre given relative to the arc start (G91.1, ``CC IX``).
     insert_at : int64 (M,)
         Character offset where a missing axis word can be inserted in the block.
+    blend_tol_mm : float64 (M,)
+        Path control the program sets for the corner at the end of the move, mm: NaN
+        (:data:`BLEND_PROFILE`) when the program sets none (the profile's
+        ``planner.corner_tolerance_mm`` applies), 0 (:data:`BLEND_EXACT_PATH`, ``G61``),
+        -1 (:data:`BLEND_EXACT_STOP`, ``G61.1``), +inf (:data:`BLEND_NO_BOUND`, ``G64`` without P),
+        else the largest deviation from the corner (``G64 P``, Klartext cycle 32 ``T``), in mm.
+        How :mod:`ilcnc.plan` applies it: its module docstring, section "Path control".
+    block_time_s : float64 (M,)
+        Time the program gives the block, s: ``60 / F`` under inverse-time feed (``G93``), NaN
+        where the feed is a speed and for rapids. A block of zero length still lasts that long.
+
+    ``blend_tol_mm`` and ``block_time_s`` may be left out when a table is built (NaN for every
+    move: no path control, no inverse time).
     """
 
     kind: NDArray[np.int8]
@@ -137,6 +160,15 @@ class MoveTable:
     center_style: NDArray[np.int8]
     center_incremental: NDArray[np.bool_]
     insert_at: NDArray[np.int64]
+    blend_tol_mm: NDArray[np.float64] = None  # type: ignore[assignment]  # NaN-filled when left out
+    block_time_s: NDArray[np.float64] = None  # type: ignore[assignment]  # NaN-filled when left out
+
+    def __post_init__(self) -> None:
+        m = int(self.kind.shape[0])
+        if self.blend_tol_mm is None:
+            self.blend_tol_mm = np.full(m, np.nan)
+        if self.block_time_s is None:
+            self.block_time_s = np.full(m, np.nan)
 
     def __len__(self) -> int:
         return int(self.kind.shape[0])
@@ -155,7 +187,7 @@ class MoveTableBuilder:
     _NAMES = (
         "kind", "line", "start", "end", "center", "offset", "plane", "turns", "feed",
         "unit", "command", "flags", "wstart", "wend", "wdec", "wstyle", "winc",
-        "cstart", "cend", "cdec", "cstyle", "cinc", "insert_at",
+        "cstart", "cend", "cdec", "cstyle", "cinc", "insert_at", "blend_tol", "block_time",
     )
 
     def __init__(self) -> None:
@@ -204,8 +236,14 @@ class MoveTableBuilder:
         cstyle: tuple[int, int, int] = (0, 0, 0),
         cinc: tuple[bool, bool, bool] = (False, False, False),
         insert_at: int = -1,
+        blend_tol: float = BLEND_PROFILE,
+        block_time: float = float("nan"),
     ) -> int:
-        """Append one move; returns its command index k, or -1 if not a command."""
+        """Append one move; returns its command index k, or -1 if not a command.
+
+        ``blend_tol`` and ``block_time`` are :attr:`MoveTable.blend_tol_mm` (mm) and
+        :attr:`MoveTable.block_time_s` (s) of the move.
+        """
         c = self._cols
         k = -1
         if correctable and kind == MOVE_LINE:
@@ -234,6 +272,8 @@ class MoveTableBuilder:
         c["cstyle"].append(cstyle)
         c["cinc"].append(cinc)
         c["insert_at"].append(insert_at)
+        c["blend_tol"].append(blend_tol)
+        c["block_time"].append(block_time)
         return k
 
     def build(self) -> MoveTable:
@@ -283,6 +323,8 @@ class MoveTableBuilder:
             center_style=arr3("cstyle", np.int8),
             center_incremental=arr3("cinc", np.bool_),
             insert_at=np.array(c["insert_at"], dtype=np.int64),
+            blend_tol_mm=np.array(c["blend_tol"], dtype=np.float64),
+            block_time_s=np.array(c["block_time"], dtype=np.float64),
         )
 
 
