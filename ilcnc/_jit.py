@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["HAVE_NUMBA", "njit"]
+__all__ = ["HAVE_NUMBA", "njit", "set_component"]
 
 try:  # pragma: no cover - exercised by the environment, not by a test
     from numba import njit
@@ -29,3 +29,14 @@ except ImportError:  # pragma: no cover - the numpy paths do the same work
         if args and callable(args[0]):
             return wrap(args[0])
         return wrap
+
+
+@njit(cache=True, nogil=True, inline="always")
+def set_component(x0: float, x1: float, x2: float, axis: int, value: float) -> tuple[float, float, float]:  # pragma: no cover
+    """``(x0, x1, x2)`` with component ``axis`` replaced: compiled loops keep a point in three scalars (registers);
+    a small array would be a heap allocation per call."""
+    if axis == 0:
+        return value, x1, x2
+    if axis == 1:
+        return x0, value, x2
+    return x0, x1, value

@@ -109,7 +109,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ilcnc._jit import HAVE_NUMBA, njit
+from ilcnc._jit import HAVE_NUMBA, njit, set_component
 from ilcnc.program.model import MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, PLANE_AXES, PLANE_XY, MoveTable
 
 if HAVE_NUMBA:  # pragma: no cover - exercised by the environment, not by a test
@@ -1301,17 +1301,6 @@ def _k_arc_d2(arct, arci, multi_path, ja, p0, p1, p2):  # pragma: no cover - com
     return d2, f, srad, cth, sth
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _k_set(x0, x1, x2, axis, value):  # pragma: no cover - compiled
-    """``(x0, x1, x2)`` with component ``axis`` replaced (scalars stay in registers; a small array is a heap
-    allocation per call)."""
-    if axis == 0:
-        return value, x1, x2
-    if axis == 1:
-        return x0, value, x2
-    return x0, x1, value
-
-
 @njit(cache=True, nogil=True)
 def _k_arc_foot(arct, arci, ja, f, srad, cth, sth):  # pragma: no cover - compiled
     """Foot (x, y, z) at fraction ``f`` of arc row ``ja`` and the unit left normal (x, y, z), as ``_arc_d2(full=True)``.
@@ -1334,12 +1323,12 @@ def _k_arc_foot(arct, arci, ja, f, srad, cth, sth):  # pragma: no cover - compil
         th = arct[ja, 16] + sg * fs
         c = math.cos(th)
         sn = math.sin(th)
-    x0, x1, x2 = _k_set(0.0, 0.0, 0.0, ia1, arct[ja, 0] + r * c)
-    x0, x1, x2 = _k_set(x0, x1, x2, ia2, arct[ja, 1] + r * sn)
-    x0, x1, x2 = _k_set(x0, x1, x2, il, arct[ja, 10] + arct[ja, 19] * f)
+    x0, x1, x2 = set_component(0.0, 0.0, 0.0, ia1, arct[ja, 0] + r * c)
+    x0, x1, x2 = set_component(x0, x1, x2, ia2, arct[ja, 1] + r * sn)
+    x0, x1, x2 = set_component(x0, x1, x2, il, arct[ja, 10] + arct[ja, 19] * f)
     # left of the direction of travel = -sig * radial unit (CCW: towards the centre)
-    l0, l1, l2 = _k_set(0.0, 0.0, 0.0, ia1, -sg * c)
-    l0, l1, l2 = _k_set(l0, l1, l2, ia2, -sg * sn)
+    l0, l1, l2 = set_component(0.0, 0.0, 0.0, ia1, -sg * c)
+    l0, l1, l2 = set_component(l0, l1, l2, ia2, -sg * sn)
     return x0, x1, x2, l0, l1, l2
 
 

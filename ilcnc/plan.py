@@ -107,7 +107,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc._jit import HAVE_NUMBA, njit
+from ilcnc._jit import HAVE_NUMBA, njit, set_component
 from ilcnc.profile import MachineProfile
 from ilcnc.program.geometry import arc_sweep_rad, move_lengths_mm
 from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
@@ -808,16 +808,6 @@ def _arc_table(moves: MoveTable, idx: NDArray[np.int64], sweep_all: NDArray[np.f
 
 
 @njit(cache=True, nogil=True)
-def _set_axis(x0, x1, x2, axis, value):  # pragma: no cover - compiled
-    """``(x0, x1, x2)`` with component ``axis`` replaced (three scalars stay in registers, a small array would not)."""
-    if axis == 0:
-        return value, x1, x2
-    if axis == 1:
-        return x0, value, x2
-    return x0, x1, value
-
-
-@njit(cache=True, nogil=True)
 def _ideal_block(k0, k1, i, period, total, last, t_end, dur, pspd, owner, offs, mlen, gs, ge, garc, ga1, ga2, gc1, gc2,
                  gr, gt0, gssw, prev, blk, counts):  # pragma: no cover - compiled
     """Samples ``k0:k1`` of the ideal interpolator (:func:`_sample_ideal`) as increments into ``blk``.
@@ -845,8 +835,8 @@ def _ideal_block(k0, k1, i, period, total, last, t_end, dur, pspd, owner, offs, 
         x2 = gs[o, 2] + (ge[o, 2] - gs[o, 2]) * frac
         if garc[o]:
             ang = gt0[o] + gssw[o] * frac
-            x0, x1, x2 = _set_axis(x0, x1, x2, ga1[o], gc1[o] + gr[o] * math.cos(ang))
-            x0, x1, x2 = _set_axis(x0, x1, x2, ga2[o], gc2[o] + gr[o] * math.sin(ang))
+            x0, x1, x2 = set_component(x0, x1, x2, ga1[o], gc1[o] + gr[o] * math.cos(ang))
+            x0, x1, x2 = set_component(x0, x1, x2, ga2[o], gc2[o] + gr[o] * math.sin(ang))
         counts[o] += 1
         j = k - k0
         blk[j, 0] = x0 - px
