@@ -100,6 +100,7 @@ the 2.1 GB of fresh memory the reference occupies. The kernels are compiled once
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from dataclasses import dataclass
@@ -110,7 +111,15 @@ from numpy.typing import NDArray
 from ilcnc._jit import HAVE_NUMBA, njit, set_component
 from ilcnc.profile import MachineProfile
 from ilcnc.program.geometry import arc_sweep_rad, move_lengths_mm
-from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
+from ilcnc.program.model import (
+    BLEND_EXACT_PATH,
+    BLEND_EXACT_STOP,
+    BLEND_NO_BOUND,
+    MOVE_ARC_CW,
+    MOVE_RAPID,
+    PLANE_AXES,
+    MoveTable,
+)
 
 __all__ = ["PlanLimits", "Reference", "check_limits", "plan_moves", "plan_program"]
 
@@ -209,9 +218,21 @@ class PlanLimits:
         return cls(v, r, a, j)
 
 
+#: ``planner.path_control`` -> the ``blend_tol_mm`` of moves the program sets no path control for.
+_PROFILE_PATH_CONTROL = {"g64": BLEND_NO_BOUND, "g61": BLEND_EXACT_PATH, "g61.1": BLEND_EXACT_STOP}
+
+
 def plan_program(program: object, profile: MachineProfile, *, mode: str | None = None) -> Reference:
-    """Plan a :class:`~ilcnc.program.model.Program` with a machine profile."""
+    """Plan a :class:`~ilcnc.program.model.Program` with a machine profile.
+
+    Moves whose program sets no path control take the profile's ``planner.path_control``: ``tolerance``
+    (``corner_tolerance_mm``) or the mode of ``G64`` without P, ``G61``, ``G61.1`` as if programmed.
+    """
     moves = program.moves  # type: ignore[attr-defined]
+    default = _PROFILE_PATH_CONTROL.get(profile.planner.path_control)
+    if default is not None:
+        blend = moves.blend_tol_mm
+        moves = dataclasses.replace(moves, blend_tol_mm=np.where(np.isnan(blend), default, blend))
     return plan_moves(
         moves,
         PlanLimits.from_profile(profile),

@@ -499,6 +499,14 @@ SPECS: tuple[Spec, ...] = (
         10,
         default=0.01,
     ),
+    _c(
+        "planner.path_control",
+        "Path control of moves whose program sets none: tolerance (blend within corner_tolerance_mm), g64 (blend"
+        " without a bound, LinuxCNC's start-up mode; LinuxCNC still keeps a blend within a quarter of the shorter"
+        " move), g61 (exact path: stop at corners), g61.1 (exact stop at every block end).",
+        ("tolerance", "g64", "g61", "g61.1"),
+        default="tolerance",
+    ),
     _f(
         "planner.lookahead_blocks",
         "Number of blocks the look-ahead plans ahead.",
@@ -1066,6 +1074,8 @@ class PlannerSection:
         ``"seven_phase"``, ``"cubic"`` or ``"constant_feed"``.
     corner_tolerance_mm : float
         Corner tolerance, mm.
+    path_control : str
+        ``"tolerance"``, ``"g64"``, ``"g61"`` or ``"g61.1"``: the mode of moves the program sets none for.
     lookahead_blocks : int
         Look-ahead depth in blocks.
     jerk_time_constant_s : float
@@ -1076,6 +1086,7 @@ class PlannerSection:
 
     profile: str = _default("planner.profile")
     corner_tolerance_mm: float = _default("planner.corner_tolerance_mm")
+    path_control: str = _default("planner.path_control")
     lookahead_blocks: int = _default("planner.lookahead_blocks")
     jerk_time_constant_s: float = _default("planner.jerk_time_constant_s")
     arc_tolerance_mm: float = _default("planner.arc_tolerance_mm")
@@ -1386,6 +1397,7 @@ class MachineProfile:
             "planner": {
                 "profile": p.profile,
                 "corner_tolerance_mm": p.corner_tolerance_mm,
+                "path_control": p.path_control,
                 "lookahead_blocks": p.lookahead_blocks,
                 "jerk_time_constant_s": p.jerk_time_constant_s,
                 "arc_tolerance_mm": p.arc_tolerance_mm,

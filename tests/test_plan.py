@@ -330,3 +330,35 @@ def test_zero_length_inverse_time_block_stands_still_for_its_time() -> None:
         assert a.duration_s == pytest.approx(b.duration_s + 0.5, abs=0.05)
         assert np.count_nonzero(np.abs(a.pos_mm[:, 0] - 10.0) < 1e-9) >= 400
         _assert_same_reference(a, _numpy_plan(with_still.moves, lim, mode=mode))
+
+
+def test_profile_path_control_is_the_mode_of_moves_the_program_sets_none_for(tmp_path: Path) -> None:
+    """planner.path_control g64 plans a program without path-control codes as if it began with G64 (LinuxCNC's
+    start-up mode), g61 as if with G61; tolerance (the default) keeps corner_tolerance_mm."""
+    import re
+
+    from ilcnc.plan import plan_program
+    from ilcnc.profile import load_profile, profile_from_dict
+    from ilcnc.program import read_program
+    from tests.conftest import REPO
+
+    square = (REPO / "samples" / "own" / "square.ngc").read_text()
+    bare = re.sub(r"G64 P[0-9.]+( Q0)?", "", square)
+    assert "G64" not in bare and "G61" not in bare
+
+    def plan(text: str, control: str, name: str):
+        d = load_profile(REPO / "configs" / "linuxcnc-sim.yaml").to_dict()
+        d["planner"]["path_control"] = control
+        p = tmp_path / f"{name}.ngc"
+        p.write_text(text)
+        return plan_program(read_program(p), profile_from_dict(d))
+
+    as_g64 = plan(bare, "g64", "a")
+    assert np.array_equal(as_g64.pos_mm, plan("G64\n" + bare, "tolerance", "b").pos_mm)
+    as_g61 = plan(bare, "g61", "c")
+    assert np.array_equal(as_g61.pos_mm, plan("G61\n" + bare, "tolerance", "d").pos_mm)
+    default = plan(bare, "tolerance", "e")
+    assert default.n_samples > as_g64.n_samples  # blending without a bound saves time
+    assert not np.array_equal(as_g61.pos_mm[: default.n_samples], default.pos_mm[: as_g61.n_samples])
+    # the profile's default never overrides the program's own codes
+    assert np.array_equal(plan(square, "g61", "f").pos_mm, plan(square, "tolerance", "g").pos_mm)
