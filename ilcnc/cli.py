@@ -125,15 +125,12 @@ def simulate(
         console = _console()
         gains = None
         if schedule is not None:
-            from ilcnc.plan import plan_program
-            from ilcnc.tune import read_schedule, schedule_on_samples
+            from ilcnc.tune import read_schedule
 
             if schedule_axis not in prof.axes:
                 raise InputError(schedule, None, f"--schedule-axis {schedule_axis!r} is not an axis of the profile"
                                                  f" ({', '.join(prof.axes)})")
-            t_s, kp = read_schedule(schedule)
-            n = plan_program(prog, prof).n_samples
-            gains = {schedule_axis: schedule_on_samples(t_s, kp, n, prof.machine.servo_period_s)}
+            gains = {schedule_axis: read_schedule(schedule)}
         if as_json or gains is not None:
             result = sim_mod.simulate_program(prog, prof, against=orig, gain_schedule=gains)
         else:

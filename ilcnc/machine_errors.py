@@ -24,7 +24,7 @@ commands add their move toward the wall.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -55,6 +55,9 @@ class ErrorSources:
         The stock (OMI) file.
     constant_depth_mm : float or None
         Radial depth of every command when there is no stock file, mm.
+    _depth_of : (Program, ndarray) or None
+        The stock file's radial depths of the last drawing it was read for (the learning loop runs
+        the same drawing every iteration).
     """
 
     geometry: Any = None
@@ -63,6 +66,7 @@ class ErrorSources:
     wall: str = "left"
     stock_path: Any = None
     constant_depth_mm: float | None = None
+    _depth_of: tuple[Program, NDArray[np.float64]] | None = field(default=None, repr=False, compare=False)
 
     @property
     def enabled(self) -> bool:
@@ -149,9 +153,12 @@ class ErrorSources:
         """
         from ilcnc import deflection as dfl
 
-        if self.stock_path is not None:
+        if self._depth_of is not None and self._depth_of[0] is original:
+            ae0 = self._depth_of[1]  # the stock file is read once per drawing, not once per run
+        elif self.stock_path is not None:
             # a per-command file states the depth of the original; a points file is geometry
             ae0 = dfl.read_stock(self.stock_path, original, self.tool, wall=self.wall)  # type: ignore[arg-type]
+            self._depth_of = (original, ae0)
         else:
             ae0 = np.full(original.n_commands, float(self.constant_depth_mm or 0.0))
         if running is original:

@@ -108,7 +108,7 @@ def simulate_program(
     against: Program | None = None,
     progress: Callable[[str], None] | None = None,
     sources: ErrorSources | None = None,
-    gain_schedule: Mapping[str, NDArray[np.float64]] | None = None,
+    gain_schedule: Mapping[str, tuple[NDArray[np.float64], NDArray[np.float64]]] | None = None,
 ) -> SimulationResult:
     """Run a program on the virtual CNC of a profile.
 
@@ -126,9 +126,10 @@ def simulate_program(
     sources : ErrorSources, optional
         Geometric and cutting errors to add to the drives' positions (default:
         those the profile names, loaded here; the learning loop loads them once).
-    gain_schedule : mapping of axis to ndarray (N,), optional
-        Position-loop gain of an axis per servo period, (m/min)/mm (seed 001's schedule,
-        ``ilcnc tune --method schedule``; see :func:`ilcnc.drives.simulate_drives`).
+    gain_schedule : mapping of axis to (t_s, kp), optional
+        A position-loop gain schedule of an axis: gain ``kp`` ((m/min)/mm) from each instant ``t_s`` (s) on
+        (seed 001's schedule, ``ilcnc tune --method schedule``, :func:`ilcnc.tune.read_schedule`); held per
+        servo period over the planned run (see :func:`ilcnc.drives.simulate_drives`).
 
     Raises
     ------
@@ -159,7 +160,12 @@ def simulate_program(
     t0 = time.perf_counter()
     if progress:
         progress("drives")
-    act = simulate_drives(ref.pos_mm, profile, gain_schedule=gain_schedule)
+    gains = None
+    if gain_schedule:
+        from ilcnc.tune import schedule_on_samples
+
+        gains = {ax: schedule_on_samples(t, kp, ref.n_samples, ref.period_s) for ax, (t, kp) in gain_schedule.items()}
+    act = simulate_drives(ref.pos_mm, profile, gain_schedule=gains)
     timings["drives"] = time.perf_counter() - t0
     if sources is None:
         sources = ErrorSources.from_profile(profile)

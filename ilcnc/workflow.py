@@ -373,9 +373,7 @@ def _measured(req: LearnRequest, profile: MachineProfile, profile_sha: str, data
         # a refused first measurement leaves no half-made state behind (a retry would find it "not empty")
         for d in made:
             if d.is_dir() and not (d / "state.json").exists():
-                for p in d.iterdir():
-                    p.unlink() if p.is_file() or p.is_symlink() else shutil.rmtree(p)
-                d.rmdir()
+                shutil.rmtree(d)  # made empty by this call (_new_state refuses a non-empty directory)
         raise
 
 
