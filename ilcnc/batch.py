@@ -22,6 +22,7 @@ Paths are relative to the manifest's folder.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 from collections.abc import Callable, Iterable
@@ -29,6 +30,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ilcnc._threads import limit_process, thread_limit_scope, threads_per_part
 from ilcnc.errors import IlcncError, InputError
 from ilcnc.fileio import read_bytes, write_atomic
 
@@ -165,6 +167,7 @@ def run_batch(
     workers: int = 1,
     scheduler: str | Any | None = None,
     on_result: Callable[[PartResult], None] | None = None,
+    threads: int | None = None,
 ) -> list[PartResult]:
     """Learn every job; results in the order of ``jobs``.
 
@@ -178,6 +181,21 @@ def run_batch(
         client: the parts run on that cluster instead.
     on_result : callable, optional
         Called with each part's result as it finishes (progress output).
+    threads : int, optional
+        Threads of each part (its drive and contour stages, BLAS). Default:
+        with ``workers=1`` every core (one part at a time, each as fast as
+        it can be); with more workers ``max(1, cores // workers)`` in each
+        worker process (:mod:`ilcnc._threads`), so that the processes do not
+        fight over the cores; on Dask ``max(1, cores // threads of the
+        worker)`` for ilcnc's own pools (Dask's workers run BLAS on one
+        thread already). The thread count does not change any result.
+
+    Notes
+    -----
+    ``workers=1`` runs in this process with all the threads: on a machine of
+    ``c`` cores a part's threaded stages already use more than one core, so
+    the throughput of ``workers=c`` is less than ``c`` times that of
+    ``workers=1`` even when the pool itself costs nothing.
     """
     if not jobs:
         return []
@@ -185,18 +203,17 @@ def run_batch(
         Path(jobs[0].out).parent.mkdir(parents=True, exist_ok=True)
     results: list[PartResult | None] = [None] * len(jobs)
     if scheduler is not None:
-        _run_dask(jobs, scheduler, results, on_result)
+        _run_dask(jobs, scheduler, results, on_result, threads)
     elif workers <= 1:
-        for i, j in enumerate(jobs):
-            results[i] = learn_one(j)
-            if on_result:
-                on_result(results[i])  # type: ignore[arg-type]
+        with _limited_here(threads):
+            for i, j in enumerate(jobs):
+                results[i] = learn_one(j)
+                if on_result:
+                    on_result(results[i])  # type: ignore[arg-type]
     else:
         import concurrent.futures as cf
-        import multiprocessing as mp
 
-        ctx = mp.get_context("spawn")  # numba and threads do not survive fork
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with _process_pool(workers, threads) as pool:
             futs = {pool.submit(learn_one, j): i for i, j in enumerate(jobs)}
             for f in cf.as_completed(futs):
                 i = futs[f]
@@ -206,8 +223,58 @@ def run_batch(
     return [r for r in results if r is not None]
 
 
+def _limited_here(threads: int | None) -> contextlib.AbstractContextManager[object]:
+    """This process's parts on ``threads`` threads (ilcnc's pools and BLAS) inside the block; None: unchanged."""
+    if threads is None:
+        return contextlib.nullcontext()
+    stack = contextlib.ExitStack()
+    stack.enter_context(thread_limit_scope(threads))
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        return stack
+    stack.enter_context(threadpool_limits(limits=threads))
+    return stack
+
+
+def _init_worker(threads: int) -> None:
+    """Initializer of a local worker process: every pool of the process on ``threads`` threads."""
+    limit_process(threads)
+
+
+def _process_pool(workers: int, threads: int | None = None) -> Any:
+    """The local pool of ``workers`` processes (spawned), each limited to ``threads`` (default cores // workers)."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    n = threads if threads is not None else threads_per_part(workers)
+    ctx = mp.get_context("spawn")  # numba and threads do not survive fork
+    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(n,))
+
+
+def _dask_task_threads(threads: int | None = None) -> int:
+    """Threads of one part in a Dask task: ``threads``, else cores of the worker // its task threads."""
+    if threads is not None:
+        return threads
+    try:
+        from distributed import get_worker
+
+        w = get_worker()
+        slots = getattr(getattr(w, "state", None), "nthreads", None) or getattr(w, "nthreads", 1)
+    except (ImportError, ValueError):  # not in a Dask worker
+        slots = 1
+    return threads_per_part(int(slots))
+
+
+def _learn_one_dask(job: BatchJob, threads: int | None = None) -> PartResult:
+    """:func:`learn_one` in a Dask task, its pools limited for the calling thread only (the worker's
+    other threads run other parts; its BLAS is on one thread already: Dask's ``OMP_NUM_THREADS=1``)."""
+    with thread_limit_scope(_dask_task_threads(threads)):
+        return learn_one(job)
+
+
 def _run_dask(jobs: list[BatchJob], scheduler: str | Any, results: list[PartResult | None],
-              on_result: Callable[[PartResult], None] | None) -> None:
+              on_result: Callable[[PartResult], None] | None, threads: int | None = None) -> None:
     try:
         from distributed import Client, as_completed
     except ImportError:
@@ -215,7 +282,7 @@ def _run_dask(jobs: list[BatchJob], scheduler: str | Any, results: list[PartResu
     own = isinstance(scheduler, str)
     client = Client(scheduler) if own else scheduler
     try:
-        futs = client.map(learn_one, jobs, pure=False)
+        futs = client.map(_learn_one_dask, jobs, threads=threads, pure=False)
         index = {f.key: i for i, f in enumerate(futs)}
         for f in as_completed(futs):
             i = index[f.key]

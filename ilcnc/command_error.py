@@ -30,6 +30,7 @@ from ilcnc.program.model import Program
 __all__ = [
     "DEFAULT_ERROR",
     "CommandSignal",
+    "PathWeightedSums",
     "command_end_tangents",
     "command_signal_from_run",
     "error_kind",
@@ -216,42 +217,68 @@ def path_weighted_error(
     t_s : ndarray (K,)
         Weighted mean time, s.
     """
-    kk = path.n_commands
-    e = np.full((kk, 3), np.nan)
-    t = np.full(kk, np.nan)
-    n = len(err.dist_mm)
-    if kk == 0 or n == 0:
+    acc = PathWeightedSums(path)
+    acc.add(err, t_s, on_feed=on_feed)
+    return acc.result()
+
+
+class PathWeightedSums:
+    """The sums of :func:`path_weighted_error`, accumulated over a run handed over in consecutive stretches.
+
+    A long run is simulated chunk by chunk (:mod:`ilcnc.stream`): each chunk's contour error is added
+    (:meth:`add`, with the index of its first sample) and dropped; the sums are those of one pass over
+    the whole run, in the same order, so :meth:`result` is :func:`path_weighted_error`'s, bit for bit.
+    Memory O(K).
+    """
+
+    def __init__(self, path: Any) -> None:
+        self.path = path
+        kk = path.n_commands
+        cmd = np.asarray(path.command, dtype=np.int64)
+        nseg = cmd.size
+        # the command whose end point starts each move; -1 for the first move, and where the previous
+        # move's end is not this move's start (a gap in the table)
+        k_start = np.full(nseg, -1, dtype=np.int64)
+        if nseg > 1:
+            joined = np.all(np.abs(path.end_mm[:-1] - path.start_mm[1:]) <= 1e-9, axis=1)
+            k_start[1:] = np.where(joined, cmd[:-1], -1)
+        self.cmd, self.k_start = cmd, k_start
+        self.num = np.zeros((kk, 3))
+        self.den = np.zeros(kk)
+        self.tnum = np.zeros(kk)
+
+    def add(self, err: Any, t_s: NDArray[np.float64] | float, *, on_feed: NDArray[np.bool_] | None = None,
+            first_sample: int = 0) -> None:
+        """Add the samples of one stretch: ``err`` its contour error, ``t_s`` its times (or the period of
+        uniform samples from t = 0, then ``first_sample`` is the index of the stretch's first sample)."""
+        if self.den.size == 0 or len(err.dist_mm) == 0:
+            return
+        feed = np.ones(1, dtype=np.bool_) if on_feed is None else np.asarray(on_feed, dtype=np.bool_)
+        if np.ndim(t_s) == 0:
+            period, times = float(t_s), np.zeros(1)
+        else:
+            period, times = -1.0, np.ascontiguousarray(t_s, dtype=np.float64)
+        args = (np.asarray(err.seg, dtype=np.int64), np.asarray(err.u, dtype=np.float64),
+                np.asarray(err.vector_mm, dtype=np.float64), np.asarray(err.dist_mm, dtype=np.float64),
+                feed, on_feed is not None, times, period, int(first_sample), self.cmd, self.k_start, self.num,
+                self.den, self.tnum)
+        if HAVE_NUMBA:
+            _path_weighted_kernel_jit()(*args)
+        else:  # pragma: no cover - numba is a runtime dependency
+            _path_weighted_numpy(*args)
+
+    def result(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(e_mm, t_s)`` as :func:`path_weighted_error` returns them."""
+        kk = self.den.size
+        e = np.full((kk, 3), np.nan)
+        t = np.full(kk, np.nan)
+        has = self.den > 0
+        e[has] = self.num[has] / self.den[has, None]
+        t[has] = self.tnum[has] / self.den[has]
         return e, t
-    cmd = np.asarray(path.command, dtype=np.int64)
-    nseg = cmd.size
-    # the command whose end point starts each move; -1 for the first move, and where the previous
-    # move's end is not this move's start (a gap in the table)
-    k_start = np.full(nseg, -1, dtype=np.int64)
-    if nseg > 1:
-        joined = np.all(np.abs(path.end_mm[:-1] - path.start_mm[1:]) <= 1e-9, axis=1)
-        k_start[1:] = np.where(joined, cmd[:-1], -1)
-    feed = np.ones(1, dtype=np.bool_) if on_feed is None else np.asarray(on_feed, dtype=np.bool_)
-    if np.ndim(t_s) == 0:
-        period, times = float(t_s), np.zeros(1)
-    else:
-        period, times = -1.0, np.ascontiguousarray(t_s, dtype=np.float64)
-    num = np.zeros((kk, 3))
-    den = np.zeros(kk)
-    tnum = np.zeros(kk)
-    args = (np.asarray(err.seg, dtype=np.int64), np.asarray(err.u, dtype=np.float64),
-            np.asarray(err.vector_mm, dtype=np.float64), np.asarray(err.dist_mm, dtype=np.float64),
-            feed, on_feed is not None, times, period, cmd, k_start, num, den, tnum)
-    if HAVE_NUMBA:
-        _path_weighted_kernel_jit()(*args)
-    else:  # pragma: no cover - numba is a runtime dependency
-        _path_weighted_numpy(*args)
-    has = den > 0
-    e[has] = num[has] / den[has, None]
-    t[has] = tnum[has] / den[has]
-    return e, t
 
 
-def _path_weighted_numpy(seg, u, vec, dist, feed, use_feed, times, period, cmd, k_start, num, den, tnum):
+def _path_weighted_numpy(seg, u, vec, dist, feed, use_feed, times, period, offset, cmd, k_start, num, den, tnum):
     """Numpy form of :func:`_path_weighted_kernel` (the reference of its test; memory: several N-long temporaries)."""
     ok = (seg >= 0) & np.isfinite(dist)
     if use_feed:
@@ -259,7 +286,7 @@ def _path_weighted_numpy(seg, u, vec, dist, feed, use_feed, times, period, cmd, 
     idx_s = np.flatnonzero(ok)
     s = seg[idx_s]
     f = np.clip(u[idx_s] - s, 0.0, 1.0)
-    ts = idx_s * period if period >= 0 else times[idx_s]
+    ts = (idx_s + offset) * period if period >= 0 else times[idx_s]
     idx = np.concatenate([cmd[s], k_start[s]])
     w = np.concatenate([f, 1.0 - f])
     sel = (idx >= 0) & (w > 0)
@@ -273,7 +300,7 @@ def _path_weighted_numpy(seg, u, vec, dist, feed, use_feed, times, period, cmd, 
 
 
 def _path_weighted_kernel(  # pragma: no cover - compiled
-    seg, u, vec, dist, feed, use_feed, times, period, cmd, k_start, num, den, tnum
+    seg, u, vec, dist, feed, use_feed, times, period, offset, cmd, k_start, num, den, tnum
 ):
     """One pass over the samples, accumulating the hat-weighted sums per command (memory O(K), not O(N))."""
     for i in range(seg.shape[0]):
@@ -287,7 +314,7 @@ def _path_weighted_kernel(  # pragma: no cover - compiled
             f = 0.0
         elif f > 1.0:
             f = 1.0
-        ti = i * period if period >= 0.0 else times[i]
+        ti = (i + offset) * period if period >= 0.0 else times[i]
         k = cmd[s]
         if k >= 0 and f > 0.0:
             den[k] += f

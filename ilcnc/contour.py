@@ -102,7 +102,6 @@ mapping the 5 GB of fresh memory the result occupies.
 from __future__ import annotations
 
 import math
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -912,7 +911,9 @@ def contour_error(
     )
     chunk = max(int(chunk), 1024)
     starts = list(range(0, n, chunk))
-    nw = workers if workers is not None else (os.cpu_count() or 1)
+    from ilcnc._threads import thread_limit  # the one place that decides ilcnc's thread counts
+
+    nw = workers if workers is not None else thread_limit()
     nw = max(1, min(int(nw), len(starts)))
     walked = [0] * nw
     use_kernel = _USE_KERNEL

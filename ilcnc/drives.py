@@ -135,7 +135,6 @@ once.
 from __future__ import annotations
 
 import math
-import os
 import warnings
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -163,6 +162,7 @@ __all__ = [
     "HAVE_NUMBA",
     "DiscreteModel",
     "DriveModelError",
+    "DriveStream",
     "axis_response",
     "cross_coupled_response",
     "discrete_model",
@@ -644,6 +644,141 @@ def _deflated_kernel(r, out, bn, an, g, delay):  # pragma: no cover - compiled; 
         if k + delay < n:
             out[k + delay] = r0 + y
     return finite
+
+
+@njit(cache=True, nogil=True)
+def _deflated_stream_kernel(r, y, bn, an, g, r0, z, st):  # pragma: no cover - compiled; checked against the whole run
+    """:func:`_deflated_kernel` on the next stretch of a reference, before its delay: ``y[k] = r0 + g·dev[k] +
+    C/A·Δdev[k]``. The filter state ``z`` and ``st`` (the previous deviation, the samples seen) carry on from
+    the stretch before, so the stretches of a run give the numbers of one pass. False if ``r`` is not finite."""
+    n = r.shape[0]
+    nf = an.shape[0]
+    finite = True
+    prev = st[0]
+    seen = st[1]
+    for k in range(n):
+        x = r[k]
+        if not math.isfinite(x):
+            finite = False
+        dev = x - r0
+        step = dev - (prev if seen + k > 0 else dev)
+        prev = dev
+        yy = g * dev
+        if nf > 1:
+            lf = z[0] + bn[0] * step
+            for i in range(nf - 2):
+                z[i] = z[i + 1] + step * bn[i + 1] - lf * an[i + 1]
+            z[nf - 2] = step * bn[nf - 1] - lf * an[nf - 1]
+            yy = yy + lf
+        y[k] = r0 + yy
+    st[0] = prev
+    st[1] = seen + n
+    return finite
+
+
+class _AxisStream:
+    """One linear axis run stretch by stretch: the deflated filter's state and the delay line."""
+
+    def __init__(self, model: DiscreteModel, r0: float) -> None:
+        c, aa, g = _deflated(model)
+        if len(c):
+            bn = np.zeros(len(aa))
+            bn[: len(c)] = c
+            self.bn, self.an = bn / aa[0], aa / aa[0]
+        else:
+            self.bn = self.an = np.zeros(0)
+        self.g = float(g)
+        self.r0 = float(r0)
+        self.z = np.zeros(max(len(self.an) - 1, 1))
+        self.st = np.zeros(2)
+        # outputs not handed out yet: the model's delay (the first ones are the rest position, r0 + 0.0)
+        self.pending = np.full(int(model.delay_samples), self.r0 + 0.0)
+
+    def step(self, ref: np.ndarray, out: np.ndarray) -> None:
+        y = np.empty(ref.shape[0])
+        if not _deflated_stream_kernel(np.ascontiguousarray(ref), y, self.bn, self.an, self.g, self.r0, self.z,
+                                       self.st):
+            raise ValueError("the reference contains NaN or infinite values")
+        d = self.pending.shape[0]
+        if d == 0:
+            out[:] = y
+            return
+        both = np.concatenate([self.pending, y])
+        out[:] = both[: y.shape[0]]
+        self.pending = both[y.shape[0]:]
+
+
+class DriveStream:
+    """The drives of a profile run on a reference handed over in consecutive stretches.
+
+    :func:`simulate_drives` needs the whole reference (N × 3 floats); a long program's reference is
+    planned chunk by chunk (:func:`ilcnc.plan.plan_chunks`) and each chunk goes through
+    :meth:`step`, which carries every axis's filter state on: the positions are those of
+    :func:`simulate_drives` on the whole reference, bit for bit. Linear drive models only (the
+    compiled loops of friction, gain schedules and the cross-coupled controller hold their state in
+    the loop): :meth:`unsupported` says why a profile cannot stream.
+
+    Parameters
+    ----------
+    profile : MachineProfile
+    r0_mm : ndarray (3,)
+        The reference's first sample (the rest position every deviation is taken from), mm.
+    """
+
+    def __init__(self, profile: MachineProfile, r0_mm: np.ndarray) -> None:
+        why = self.unsupported(profile)
+        if why:
+            raise ValueError(why)
+        period = profile.machine.servo_period_s
+        self._axes: list[tuple[int, _AxisStream | None]] = []
+        for col, ax in enumerate(AXIS_NAMES[:3]):
+            if ax not in profile.axes:
+                self._axes.append((col, None))
+                continue
+            try:
+                model = discrete_model(profile.axes[ax].drive, period)
+            except DriveModelError as exc:
+                raise ProfileError(profile.path, None, f"axes.{ax}.drive: {exc}") from None
+            self._axes.append((col, _AxisStream(model, float(r0_mm[col]))))
+
+    @staticmethod
+    def unsupported(profile: MachineProfile) -> str | None:
+        """Why the profile's drives cannot run stretch by stretch (None: they can)."""
+        if profile.controller.type == "cross_coupled":
+            return "the cross-coupled controller runs the whole reference at once"
+        for ax, axis in profile.axes.items():
+            d = axis.drive
+            if isinstance(d, PFfFrictionDrive) and max(d.coulomb_n, d.static_n) > 0:
+                return f"axes.{ax}.drive has friction (its compiled loop runs the whole reference at once)"
+        return None
+
+    def step(self, ref_mm: np.ndarray) -> np.ndarray:
+        """Actual positions (n, 3) of the next ``n`` reference samples (n, 3), mm."""
+        r = np.asarray(ref_mm, dtype=float)
+        out = np.empty_like(r)
+        jobs = []
+        for col, axis in self._axes:
+            if axis is None:
+                out[:, col] = r[:, col]
+            else:
+                jobs.append((axis, col))
+
+        def run(job: tuple[_AxisStream, int]) -> None:
+            col = job[1]
+            col_out = np.empty(r.shape[0])
+            job[0].step(r[:, col], col_out)
+            out[:, col] = col_out
+
+        from ilcnc._threads import thread_limit
+
+        nw = min(len(jobs), thread_limit())
+        if nw > 1 and r.shape[0] >= _PARALLEL_SAMPLES:
+            with ThreadPoolExecutor(max_workers=nw) as ex:
+                list(ex.map(run, jobs))
+        else:
+            for job in jobs:
+                run(job)
+        return out
 
 
 # --------------------------------------------------------------------------
@@ -1182,7 +1317,9 @@ def simulate_drives(
             raise ProfileError(profile.path, None, f"axes.{job[0]}.drive: {exc}") from None
 
     # the compiled loops release the GIL: the axes run side by side
-    nw = min(len(jobs), os.cpu_count() or 1)
+    from ilcnc._threads import thread_limit  # the one place that decides ilcnc's thread counts
+
+    nw = min(len(jobs), thread_limit())
     if nw > 1 and r.shape[0] >= _PARALLEL_SAMPLES:
         with ThreadPoolExecutor(max_workers=nw) as ex:
             list(ex.map(run, jobs))

@@ -90,9 +90,9 @@ def inspect_program(path: Path, *, profile_path: Path | None = None, moves_out: 
     if moves_out is not None:
         write_atomic(moves_out, command_table_csv(program), protect=(path,))
     if prof is not None:
-        from ilcnc.plan import plan_program
+        from ilcnc.plan import planned_duration_s
 
-        cycle = plan_program(program, prof).duration_s
+        cycle = planned_duration_s(program, prof)
         kind = f"planned ({prof.planner.profile}, axis limits of {prof.machine.name})"
     else:
         cycle = feed_time_s(mv, rapid)

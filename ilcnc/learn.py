@@ -575,7 +575,9 @@ def learn_virtual(
     law : LearningLaw, optional
         Use this law instead of the profile's (e.g. with a per-command Γ).
     keep_runs : bool
-        Keep each iteration's simulation in its record (memory: one run each).
+        Keep each iteration's simulation in its record (memory: one run each). Without it, a run
+        whose profile allows it goes chunk by chunk and keeps only its figures and ``E(k)``
+        (:func:`ilcnc.stream.simulate_streamed`: the same numbers, memory bounded by a chunk).
     guard : bool
         Apply the monotonic-convergence guard (default). ``False`` runs the
         law as printed, every iteration kept -- for reproducing a paper's
@@ -599,6 +601,7 @@ def learn_virtual(
     """
     from ilcnc.machine_errors import ErrorSources
     from ilcnc.simulate import simulate_program
+    from ilcnc.stream import simulate_streamed, stream_unsupported
 
     program.require_complete()
     n_iter = profile.learning.iterations if iterations is None else int(iterations)
@@ -608,10 +611,19 @@ def learn_virtual(
 
     sources = ErrorSources.from_profile(profile)  # map, FRF and stock files read once for all runs
 
+    # a run that keeps only its figures goes chunk by chunk (bounded memory, the same numbers: ilcnc.stream)
+    streamed = not keep_runs and stream_unsupported(profile, kind, sources=sources) is None
+
     def run(prog: Program, it: int) -> tuple[Any, CommandSignal, dict[str, float]]:
         if progress:
             progress(it, n_iter, "simulate")
         t0 = time.perf_counter()
+        if streamed:
+            st = simulate_streamed(prog, profile, against=None if prog is program else program,
+                                   gate_mm=measurement_gate_mm(profile))
+            timings = dict(st.timings_s)
+            timings["simulate"] = time.perf_counter() - t0 - timings["error"]
+            return st, st.signal, timings
         sim = simulate_program(prog, profile, against=None if prog is program else program, sources=sources)
         t1 = time.perf_counter()
         sig = signal_of_simulation(sim, program, kind, measurement_gate_mm(profile))

@@ -103,6 +103,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -121,7 +122,8 @@ from ilcnc.program.model import (
     MoveTable,
 )
 
-__all__ = ["PlanLimits", "Reference", "check_limits", "plan_moves", "plan_program"]
+__all__ = ["PlanLimits", "Reference", "ReferenceChunk", "check_limits", "plan_chunks", "plan_moves", "plan_program",
+           "planned_duration_s"]
 
 _EPS = 1e-9
 _HOLD_SAMPLES = 3
@@ -228,13 +230,8 @@ def plan_program(program: object, profile: MachineProfile, *, mode: str | None =
     Moves whose program sets no path control take the profile's ``planner.path_control``: ``tolerance``
     (``corner_tolerance_mm``) or the mode of ``G64`` without P, ``G61``, ``G61.1`` as if programmed.
     """
-    moves = program.moves  # type: ignore[attr-defined]
-    default = _PROFILE_PATH_CONTROL.get(profile.planner.path_control)
-    if default is not None:
-        blend = moves.blend_tol_mm
-        moves = dataclasses.replace(moves, blend_tol_mm=np.where(np.isnan(blend), default, blend))
     return plan_moves(
-        moves,
+        _profile_moves(program, profile),
         PlanLimits.from_profile(profile),
         period_s=profile.machine.servo_period_s,
         mode=mode or profile.planner.profile,
@@ -346,6 +343,205 @@ def _plan(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corn
     else:
         mv, cmd, line = (np.repeat(c, rc) for c in cols)
     return Reference(period_s, pos, mv, cmd, line, final_speed)
+
+
+@dataclass(slots=True)
+class ReferenceChunk:
+    """Consecutive samples of a planned reference (:func:`plan_chunks`).
+
+    Attributes
+    ----------
+    first_sample : int
+        Index of the chunk's first sample in the whole reference (sample 0 at t = 0).
+    period_s : float
+        Servo period, s.
+    pos_mm, move, command, line
+        The columns of :class:`Reference` for these samples.
+    """
+
+    first_sample: int
+    period_s: float
+    pos_mm: NDArray[np.float64]
+    move: NDArray[np.int32]
+    command: NDArray[np.int32]
+    line: NDArray[np.int32]
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.pos_mm.shape[0])
+
+
+#: Samples per chunk of :func:`plan_chunks` by default: ~0.3 GB of reference, actual and contour error.
+DEFAULT_CHUNK_SAMPLES = 2_000_000
+
+
+def plan_chunks(program: object, profile: MachineProfile, *, chunk_samples: int = DEFAULT_CHUNK_SAMPLES,
+                mode: str | None = None) -> Iterator[ReferenceChunk]:
+    """Plan a program like :func:`plan_program`, handing the reference out in chunks of ``chunk_samples``.
+
+    The samples are those of :func:`plan_program`, bit for bit, but the whole reference is never held:
+    a 45-hour program has 162 M samples (5.8 GB of positions alone). A group of moves longer than a
+    chunk is planned twice: its passes first run without writing anything (they check the limits and
+    re-plan slower where needed), then the final pass runs again range by range, carrying its filter
+    state from one range to the next (:func:`_group_range`). Without numba the numpy path plans each
+    group whole.
+    """
+    moves = _profile_moves(program, profile)
+    limits = PlanLimits.from_profile(profile)
+    period_s = profile.machine.servo_period_s
+    mode = mode or profile.planner.profile
+    if mode not in ("seven_phase", "cubic", "constant_feed"):
+        raise ValueError(f"unknown planner profile {mode!r}")
+    chunk = max(int(chunk_samples), _BLOCK)
+    chunk -= chunk % _BLOCK
+    pieces = _plan_pieces(moves, limits, period_s, mode, profile.planner.corner_tolerance_mm,
+                          profile.planner.jerk_time_constant_s, IN_POSITION_S, 12, chunk)
+    buf_pos = np.empty((chunk, 3))
+    buf_mv = np.empty(chunk, dtype=np.int32)
+    fill = 0
+    first = 0
+    for pos, mv in pieces:
+        at = 0
+        while at < pos.shape[0]:
+            take = min(chunk - fill, pos.shape[0] - at)
+            buf_pos[fill:fill + take] = pos[at:at + take]
+            buf_mv[fill:fill + take] = mv[at:at + take]
+            fill += take
+            at += take
+            if fill == chunk:
+                yield _chunk(moves, first, period_s, buf_pos, buf_mv, fill)
+                first += fill
+                fill = 0
+    if fill:
+        yield _chunk(moves, first, period_s, buf_pos, buf_mv, fill)
+
+
+def planned_duration_s(program: object, profile: MachineProfile) -> float:
+    """Planned cycle time of a program, s: :func:`plan_program`'s ``duration_s`` without holding its samples."""
+    n = 0
+    period = profile.machine.servo_period_s
+    for ch in plan_chunks(program, profile):
+        n += ch.n_samples
+    return max(n - 1, 0) * period
+
+
+def _chunk(moves: MoveTable, first: int, period_s: float, pos: NDArray[np.float64], mv: NDArray[np.int32],
+           n: int) -> ReferenceChunk:
+    m = mv[:n].copy()
+    on = m >= 0
+    safe = np.maximum(m, 0)
+    return ReferenceChunk(first, period_s, pos[:n].copy(), m,
+                          np.where(on, moves.command[safe], -1).astype(np.int32),
+                          np.where(on, moves.line[safe], 0).astype(np.int32))
+
+
+def _profile_moves(program: object, profile: MachineProfile) -> MoveTable:
+    """The program's moves with the profile's ``planner.path_control`` where the program sets none."""
+    moves = program.moves  # type: ignore[attr-defined]
+    default = _PROFILE_PATH_CONTROL.get(profile.planner.path_control)
+    if default is not None:
+        blend = moves.blend_tol_mm
+        moves = dataclasses.replace(moves, blend_tol_mm=np.where(np.isnan(blend), default, blend))
+    return moves
+
+
+def _runs_to_samples(run_move: NDArray[np.int64], run_count: NDArray[np.int64]) -> NDArray[np.int32]:
+    return np.repeat(run_move.astype(np.int32), run_count)
+
+
+def _plan_pieces(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corner_tolerance_mm: float,
+                 jerk_time_constant_s: float, in_position_s: float, max_passes: int, chunk: int
+                 ) -> Iterator[tuple[NDArray[np.float64], NDArray[np.int32]]]:
+    """The samples of :func:`_plan` as consecutive pieces ``(pos_mm, move)`` of at most about ``chunk`` rows
+    (a group shorter than a chunk comes whole)."""
+    m = len(moves)
+    if m == 0:
+        return
+    length = move_lengths_mm(moves)
+    speed = _nominal_speed(moves, length, limits)
+    hold_s = _stand_still_s(moves, length)
+    active = (length > _EPS) | (hold_s > 0.0)
+    geo = _Geometry(*_directions(moves), arc_sweep_rad(moves))
+    hold = max(_HOLD_SAMPLES, math.ceil(in_position_s / period_s))
+    setups = []
+    for g0, g1 in _groups(moves.kind, active):
+        idx = np.arange(g0, g1)
+        idx = idx[active[idx]]
+        if idx.size:
+            setups.append(_group_setup(moves, geo, idx, length, speed, hold_s, limits, period_s, mode,
+                                       corner_tolerance_mm, jerk_time_constant_s))
+    yield moves.start_mm[0][None, :].copy(), np.full(1, -1, dtype=np.int32)
+    for gi, g in enumerate(setups):
+        if HAVE_NUMBA and g.first_size > chunk:
+            last_row, last_move = yield from _group_in_ranges(moves, geo, g, length, limits, period_s, mode,
+                                                              max_passes, chunk)
+        else:
+            plan_group = _plan_group_kernel if HAVE_NUMBA else _plan_group_numpy
+            buf, n_out, moves_g, counts_g, _used = plan_group(moves, geo, g, length, limits, period_s, mode,
+                                                              max_passes, np.empty((g.first_size + 16, 3)), 0)
+            last_row, last_move = buf[n_out - 1].copy(), int(moves_g[-1])
+            yield buf[:n_out], _runs_to_samples(moves_g, counts_g)
+        if gi < len(setups) - 1:  # the stand-still between groups (see _plan)
+            yield np.repeat(last_row[None, :], hold, axis=0), np.full(hold, last_move, dtype=np.int32)
+
+
+def _group_in_ranges(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: NDArray[np.float64],
+                     limits: PlanLimits, period_s: float, mode: str, max_passes: int, chunk: int
+                     ) -> Generator[tuple[NDArray[np.float64], NDArray[np.int32]], None, tuple[NDArray[np.float64], int]]:
+    """A group longer than a chunk: :func:`_plan_group_kernel`'s passes without writing, then the final
+    pass again range by range (``chunk`` rows, a multiple of ``_BLOCK``). Returns the group's last row
+    and move (the stand-still after it)."""
+    idx, v, vj, lengths = g.idx, g.v, g.vj, g.lengths
+    gs = np.ascontiguousarray(moves.start_mm[idx])
+    ge = np.ascontiguousarray(moves.end_mm[idx])
+    arcs = _arc_table(moves, idx, geo.sweep)
+    start = np.ascontiguousarray(moves.start_mm[idx[0]], dtype=np.float64)
+    lens = np.array(lengths, dtype=np.int64)
+    check = mode != "constant_feed"
+    thr_a = np.asarray(limits.acceleration_mm_s2 * (1 + _FD_NOISE), dtype=np.float64)
+    thr_j = np.asarray(limits.jerk_mm_s3 * (1 + _FD_NOISE), dtype=np.float64)
+    extra = int(lens.sum() - lens.shape[0])
+    scale = np.ones(idx.shape[0])
+    pieces = g.first
+    no_rows = np.empty((0, 3))
+    p2, p3 = float(period_s**2), float(period_s**3)
+    for _ in range(max_passes):
+        _plen, pspd, owner, offs, dur, mlen = pieces
+        n, t_end, total = _ideal_samples(dur, period_s)
+        counts = np.zeros(idx.shape[0], dtype=np.int64)
+        bad = _group_kernel(t_end, dur, pspd, owner, offs, mlen, n, float(period_s), total, gs, ge, *arcs, start, lens,
+                            no_rows, counts, check, thr_a, thr_j, p2, p3)
+        if not check or bad.size == 0:
+            break
+        cum = np.cumsum(counts)
+        lo_s, hi_s = _violation_window(bad, extra + 3, n + 1)
+        lo_g, hi_g = (np.where(x > 0, np.searchsorted(cum, x - 1, side="right"), 0) for x in (lo_s, hi_s))
+        scale[_slower_moves(lo_g, hi_g, idx.shape[0])] *= 0.8
+        pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold)
+    delay = extra // 2
+    last = int(np.flatnonzero(counts)[-1])
+    counts[0] += delay
+    counts[last] += extra - delay
+    run_move, run_count = idx[: last + 1].astype(np.int64), counts[: last + 1]
+    cum_end = np.cumsum(run_count)
+    n_out = n + extra
+    st = _group_state(start, lens)
+    scratch = np.zeros(idx.shape[0], dtype=np.int64)
+    rows = np.empty((chunk, 3))
+    bad = np.empty(16, dtype=np.int64)
+    for k0 in range(0, n_out, chunk):
+        k1 = min(k0 + chunk, n_out)
+        _group_range(k0, k1, st, t_end, dur, pspd, owner, offs, mlen, n, float(period_s), total, gs, ge, *arcs, start,
+                     lens, rows, True, scratch, False, thr_a, thr_j, p2, p3, bad, 0)
+        # the move of output samples k0..k1-1: runs cut at the range
+        r0 = int(np.searchsorted(cum_end, k0, side="right"))
+        r1 = int(np.searchsorted(cum_end, k1 - 1, side="right"))
+        cnt = run_count[r0:r1 + 1].copy()
+        cnt[0] = min(int(cum_end[r0]), k1) - k0
+        if r1 > r0:
+            cnt[-1] = k1 - int(cum_end[r1 - 1])
+        yield rows[: k1 - k0], _runs_to_samples(run_move[r0:r1 + 1], cnt)
+    return rows[(n_out - 1) % chunk].copy(), int(run_move[-1])
 
 
 @njit(cache=True, nogil=True)
@@ -977,9 +1173,26 @@ def _group_kernel(t_end, dur, pspd, owner, offs, mlen, n, period, total, gs, ge,
     for operation, so the numbers are the same. The three axes run side by side in scalars: their
     running sums are independent dependency chains the CPU overlaps.
 
-    Writes ``out`` (rows 1.. of the group's output), counts the ideal samples on each group move in
-    ``counts`` and returns the indices of the samples (0 = the start) where a limit is exceeded.
+    Writes ``out`` (rows 1.. of the group's output; an empty ``out``: nothing is written, the pass
+    only checks and counts), counts the ideal samples on each group move in ``counts`` and returns the
+    indices of the samples (0 = the start) where a limit is exceeded.
     """
+    st = _group_state(start, lens)
+    ntot = n
+    for f in range(lens.shape[0]):
+        ntot += lens[f] - 1
+    bad = np.empty(16, dtype=np.int64)
+    bad, nbad = _group_range(0, ntot, st, t_end, dur, pspd, owner, offs, mlen, n, period, total, gs, ge, garc, ga1,
+                             ga2, gc1, gc2, gr, gt0, gssw, start, lens, out, out.shape[0] > 0, counts, check, thr_a,
+                             thr_j, p2, p3, bad, 0)
+    return bad[:nbad]
+
+
+@njit(cache=True, nogil=True)
+def _group_state(start, lens):  # pragma: no cover - compiled
+    """The state a group's pass carries from one range of samples to the next (:func:`_group_range`):
+    filter rings, running sums, ring slots, the previous ideal position, the output's running sums, the
+    limit check's history and the interpolator's piece (as floats in ``misc``)."""
     nf = lens.shape[0]
     lmax = 1
     for f in range(nf):
@@ -987,25 +1200,35 @@ def _group_kernel(t_end, dur, pspd, owner, offs, mlen, n, period, total, gs, ge,
     ring = np.zeros((nf, lmax, 3))
     csum = np.zeros((nf, 3))
     slot = np.zeros((nf, 1), dtype=np.int64)
-    nin = np.empty(nf + 1, dtype=np.int64)  # input length of each filter
-    nin[0] = n
-    for f in range(nf):
-        nin[f + 1] = nin[f] + lens[f] - 1
-    ntot = nin[nf]
-    blk = np.empty((_BLOCK, 3))
     prev = start.copy()  # previous ideal position
     acc = np.zeros(3)  # running sums of the filtered increments
     hist = np.zeros(9)  # previous output position, first and second differences
     hist[:3] = start
+    piece = np.zeros(1, dtype=np.int64)
+    return ring, csum, slot, prev, acc, hist, piece
+
+
+@njit(cache=True, nogil=True)
+def _group_range(k_begin, k_end, st, t_end, dur, pspd, owner, offs, mlen, n, period, total, gs, ge, garc, ga1, ga2,
+                 gc1, gc2, gr, gt0, gssw, start, lens, out, store, counts, check, thr_a, thr_j, p2, p3, bad,
+                 nbad):  # pragma: no cover - compiled
+    """Output samples ``k_begin:k_end`` of a group's pass (``k_begin`` a multiple of ``_BLOCK``), carrying
+    the pass's state ``st`` (:func:`_group_state`) on: ranges run one after another give the numbers of
+    one run over the whole group. With ``store`` the rows go to ``out[0:k_end - k_begin]``."""
+    ring, csum, slot, prev, acc, hist, piece = st
+    nf = lens.shape[0]
+    nin = np.empty(nf + 1, dtype=np.int64)  # input length of each filter
+    nin[0] = n
+    for f in range(nf):
+        nin[f + 1] = nin[f] + lens[f] - 1
+    blk = np.empty((_BLOCK, 3))
     pre = np.empty(6)
     for a in range(3):
         pre[a] = thr_a[a] * p2 * (1.0 - 1e-12)
         pre[3 + a] = thr_j[a] * p3 * (1.0 - 1e-12)
-    bad = np.empty(16, dtype=np.int64)
-    nbad = 0
-    i = 0
-    for k0 in range(0, ntot, _BLOCK):
-        nb = min(_BLOCK, ntot - k0)
+    i = piece[0]
+    for k0 in range(k_begin, k_end, _BLOCK):
+        nb = min(_BLOCK, k_end - k0)
         k1 = min(k0 + nb, n)
         if k1 > k0:
             i = _ideal_block(k0, k1, i, period, total, n - 1, t_end, dur, pspd, owner, offs, mlen, gs, ge, garc, ga1,
@@ -1014,10 +1237,12 @@ def _group_kernel(t_end, dur, pspd, owner, offs, mlen, n, period, total, gs, ge,
         for f in range(nf):
             _average_block(k0, nb, blk, lens[f], nin[f], ring[f], csum[f], slot[f])
         _sum_block(nb, blk, acc, start)
-        out[k0:k0 + nb] = blk[:nb]
+        if store:
+            out[k0 - k_begin:k0 - k_begin + nb] = blk[:nb]
         if check:
             bad, nbad = _check_block(k0, nb, blk, hist, pre, thr_a, thr_j, p2, p3, bad, nbad)
-    return bad[:nbad]
+    piece[0] = i
+    return bad, nbad
 
 
 _Pieces = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64],

@@ -74,6 +74,14 @@ class SimulationResult:
     def cycle_time_s(self) -> float:
         return self.reference.duration_s
 
+    @property
+    def n_samples(self) -> int:
+        return self.reference.n_samples
+
+    @property
+    def period_s(self) -> float:
+        return self.reference.period_s
+
     def worst(self, program: Program) -> dict[str, int]:
         """Command index and source line of the worst sample (of ``program``'s path)."""
         if self.worst_sample < 0:
@@ -142,12 +150,7 @@ def simulate_program(
 
     program.require_complete()
     target = against if against is not None else program
-    if against is not None:
-        against.require_complete()
-        if len(against.moves) != len(program.moves) or not np.array_equal(against.moves.kind, program.moves.kind):
-            raise InputError(against.path, None,
-                             f"--against program has {len(against.moves)} moves, {program.path.name} has "
-                             f"{len(program.moves)}: it is not the same part (only coordinates may differ)")
+    _check_against(program, against)
     _check_travel(program, profile)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -214,31 +217,62 @@ def _feed_stats(move: NDArray[np.int32], rapid: NDArray[np.bool_], dist: NDArray
     ``nanargmax`` / ``nanmean`` (eight temporaries of the sample count): the maximum and its first
     sample are exact; the sums are compensated (Neumaier), within a few ulp of numpy's pairwise sums.
     """
-    feed = np.empty(move.shape[0], dtype=np.bool_)
-    cnt, worst, peak, total, total2 = _feed_values(move, rapid, dist, feed)
-    if cnt == 0:
-        return feed, {"max": 0.0, "mean": 0.0, "rms": 0.0}, -1
-    return feed, {"max": float(peak), "mean": float(total / cnt), "rms": float(np.sqrt(total2 / cnt))}, int(worst)
+    acc = FeedStats()
+    feed = acc.add(move, rapid, dist)
+    stats, worst = acc.result()
+    return feed, stats, worst
+
+
+class FeedStats:
+    """Max / mean / RMS of the contour error over the feed samples of a run, added stretch by stretch.
+
+    The running sums carry on from one stretch to the next, so a run handed over in chunks
+    (:mod:`ilcnc.stream`) gives the figures of one pass, bit for bit.
+    """
+
+    def __init__(self) -> None:
+        # count, worst sample, largest, sum and its compensation, sum of squares and its compensation
+        self.acc = np.array([0.0, -1.0, -math.inf, 0.0, 0.0, 0.0, 0.0])
+
+    def add(self, move: NDArray[np.int32], rapid: NDArray[np.bool_], dist: NDArray[np.float64],
+            first_sample: int = 0) -> NDArray[np.bool_]:
+        """Add one stretch (its first sample is ``first_sample`` of the run); returns its feed mask."""
+        feed = np.empty(move.shape[0], dtype=np.bool_)
+        _feed_values(move, rapid, dist, feed, self.acc, int(first_sample))
+        return feed
+
+    @property
+    def worst_sample(self) -> int:
+        return int(self.acc[1])
+
+    def result(self) -> tuple[dict[str, float], int]:
+        """The statistics (mm) and the run's worst sample (-1 when no feed sample had a finite error)."""
+        cnt, worst, peak, s1, c1, s2, c2 = self.acc
+        if cnt == 0:
+            return {"max": 0.0, "mean": 0.0, "rms": 0.0}, -1
+        return ({"max": float(peak), "mean": float((s1 + c1) / cnt), "rms": float(np.sqrt((s2 + c2) / cnt))},
+                int(worst))
 
 
 @njit(cache=True, nogil=True)
-def _feed_values(move, rapid, dist, feed):  # pragma: no cover - compiled
+def _feed_values(move, rapid, dist, feed, acc, offset):  # pragma: no cover - compiled
     """``feed = move >= 0 & not rapid[move]``, and over the finite ``dist`` where feed: how many, the first
-    sample of the largest, the largest, the sum and the sum of squares (Neumaier-compensated sums)."""
-    cnt = 0
-    worst = -1
-    peak = -math.inf
-    s1 = c1 = s2 = c2 = 0.0
+    sample of the largest (+ ``offset``), the largest, the sum and the sum of squares (Neumaier-compensated
+    sums), carried on in ``acc``."""
+    cnt = acc[0]
+    worst = acc[1]
+    peak = acc[2]
+    s1, c1, s2, c2 = acc[3], acc[4], acc[5], acc[6]
     for k in range(move.shape[0]):
         mv = move[k]
         f = mv >= 0 and not rapid[mv]
         feed[k] = f
         x = dist[k]
         if f and math.isfinite(x):
-            cnt += 1
+            cnt += 1.0
             if x > peak:
                 peak = x
-                worst = k
+                worst = k + offset
             t = s1 + x
             c1 += (s1 - t) + x if abs(s1) >= abs(x) else (x - t) + s1
             s1 = t
@@ -246,7 +280,18 @@ def _feed_values(move, rapid, dist, feed):  # pragma: no cover - compiled
             t = s2 + x2
             c2 += (s2 - t) + x2 if abs(s2) >= abs(x2) else (x2 - t) + s2
             s2 = t
-    return cnt, worst, peak, s1 + c1, s2 + c2
+    acc[0], acc[1], acc[2], acc[3], acc[4], acc[5], acc[6] = cnt, worst, peak, s1, c1, s2, c2
+
+
+def _check_against(program: Program, against: Program | None) -> None:
+    """Refuse an ``against`` program that is not the same part as ``program`` (only coordinates may differ)."""
+    if against is None:
+        return
+    against.require_complete()
+    if len(against.moves) != len(program.moves) or not np.array_equal(against.moves.kind, program.moves.kind):
+        raise InputError(against.path, None,
+                         f"--against program has {len(against.moves)} moves, {program.path.name} has "
+                         f"{len(program.moves)}: it is not the same part (only coordinates may differ)")
 
 
 def _check_travel(program: Program, profile: MachineProfile) -> None:

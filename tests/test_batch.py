@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from ilcnc import _threads, batch, contour, drives
 from ilcnc.batch import jobs_from_path, run_batch
 from ilcnc.cli import app
+from ilcnc.profile import load_profile
 from tests.conftest import OWN, REPO
 
 SEED004 = REPO / "configs" / "seed004-ward-sopdt.yaml"
@@ -73,7 +78,7 @@ def test_two_workers_and_dask_write_the_same_bytes(tmp_path) -> None:
     shutil.copy(OWN / "star.ngc", parts)
     shutil.copy(REPO / "samples" / "jsdc.gcode", parts)
     outs = {}
-    for name, kw in (("serial", {"workers": 1}), ("pool", {"workers": 2})):
+    for name, kw in (("serial", {"workers": 1}), ("pool", {"workers": 2}), ("one-thread", {"workers": 1, "threads": 1})):
         jobs = jobs_from_path(parts, SEED004, tmp_path / name, iterations=2)
         res = run_batch(jobs, **kw)
         assert all(r.status != "error" for r in res), res
@@ -83,7 +88,7 @@ def test_two_workers_and_dask_write_the_same_bytes(tmp_path) -> None:
         jobs = jobs_from_path(parts, SEED004, tmp_path / "dask", iterations=2)
         res = run_batch(jobs, scheduler=client)
         outs["dask"] = {Path(r.output).name: Path(r.output).read_bytes() for r in res}
-    assert outs["serial"] == outs["pool"] == outs["dask"]
+    assert outs["serial"] == outs["pool"] == outs["one-thread"] == outs["dask"]
     assert set(outs["dask"]) == {"star.ilc.ngc", "jsdc.ilc.gcode"}
 
 
@@ -99,3 +104,113 @@ def test_check_gate(tmp_path) -> None:
                              "0.01", "--max-rms", "0.001", "--json"])
     data = json.loads(js.output)
     assert js.exit_code == 1 and data["passed"] is False and data["contour_error_mm"]["max"] > 0.01
+
+
+# ------------------------------------------------------------------ threads per part (issue 10: batch scaling)
+
+
+def _threads_seen(_: object = None) -> dict[str, object]:
+    """What a process's pools may use, numpy and scipy's BLAS loaded now (after the pool's initializer)."""
+    import scipy.linalg  # noqa: F401 - loads scipy's own BLAS too
+    from threadpoolctl import threadpool_info
+
+    return {"ilcnc": _threads.thread_limit(), "pid": os.getpid(), "omp": os.environ.get("OMP_NUM_THREADS"),
+            "blas": sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})}
+
+
+class _Recorder:
+    """Stand-in for ThreadPoolExecutor that records the pool sizes asked for."""
+
+    def __init__(self, sizes: list[int]) -> None:
+        self.sizes = sizes
+
+    def __call__(self, max_workers: int):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.sizes.append(max_workers)
+        return ThreadPoolExecutor(max_workers=max_workers)
+
+
+def test_worker_processes_run_on_their_share_of_the_cores() -> None:
+    cores = _threads.available_cores()
+    assert _threads.threads_per_part(2, 2) == 1 and _threads.threads_per_part(2, 8) == 4
+    assert _threads.threads_per_part(3, 2) == 1 and _threads.threads_per_part(1, 2) == 2
+    for workers, threads, want in ((2, None, max(1, cores // 2)), (1, 1, 1)):
+        with batch._process_pool(workers, threads) as pool:
+            seen = [pool.submit(_threads_seen).result() for _ in range(2 * workers)]
+        for s in seen:
+            assert s["ilcnc"] == want and s["omp"] == str(want), s
+            assert s["blas"] and max(s["blas"]) <= want, s  # numpy's and scipy's OpenBLAS
+    # the parent keeps every core (a batch of workers=1 runs each part on all of them)
+    assert _threads.thread_limit() == cores
+
+
+def test_thread_limit_scope_is_per_thread_and_nests() -> None:
+    cores = _threads.available_cores()
+    seen: dict[str, int] = {}
+    with _threads.thread_limit_scope(3) as n:
+        assert n == 3 == _threads.thread_limit()
+        t = threading.Thread(target=lambda: seen.setdefault("other", _threads.thread_limit()))
+        t.start()
+        t.join()
+        with _threads.thread_limit_scope(1):
+            assert _threads.thread_limit() == 1
+        assert _threads.thread_limit() == 3
+    assert seen["other"] == cores and _threads.thread_limit() == cores
+    prev = _threads.set_thread_limit(5)
+    try:
+        assert _threads.thread_limit() == 5
+        with _threads.thread_limit_scope(2):
+            assert _threads.thread_limit() == 2
+    finally:
+        _threads.set_thread_limit(prev)
+    with pytest.raises(ValueError):
+        _threads.set_thread_limit(0)
+
+
+def test_dask_task_takes_cores_over_worker_threads() -> None:
+    distributed = pytest.importorskip("distributed", reason="dask.distributed is a test dependency ('.[test]')")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        assert client.submit(batch._dask_task_threads, pure=False).result() == _threads.threads_per_part(2)
+        assert client.submit(batch._dask_task_threads, 3, pure=False).result() == 3
+    assert batch._dask_task_threads() == _threads.available_cores()  # outside a worker: as one task per process
+
+
+def test_contour_threads_do_not_change_the_result(monkeypatch) -> None:
+    rng = np.random.default_rng(7)
+    t = np.linspace(0.0, 6 * np.pi, 400)
+    path = contour.PathGeometry.from_polyline(np.column_stack([20 * np.cos(t) + t, 20 * np.sin(t), 0.1 * t]))
+    n = 50_000
+    s = np.sort(rng.uniform(0, len(path) - 1, n))
+    seg = np.minimum(s.astype(np.int64), len(path) - 1)
+    ref = path.start_mm[seg] + (path.end_mm[seg] - path.start_mm[seg]) * (s - seg)[:, None]
+    act = ref + rng.normal(0, 0.05, (n, 3))
+    sizes: list[int] = []
+    monkeypatch.setattr(contour, "ThreadPoolExecutor", _Recorder(sizes))
+    outs = []
+    for limit in (1, 2, 3):
+        with _threads.thread_limit_scope(limit):
+            outs.append(contour.contour_error(path, act, np.maximum(seg - 3, 0), reference_mm=ref, chunk=4096))
+    assert sizes == [2, 3]  # the pools took the limit (1: no pool)
+    for o in outs[1:]:
+        for f in ("dist_mm", "foot_mm", "vector_mm", "seg", "u", "signed_mm"):
+            np.testing.assert_array_equal(getattr(o, f), getattr(outs[0], f), err_msg=f)
+        assert o.walked == outs[0].walked
+    assert np.isfinite(outs[0].dist_mm).all()
+
+
+def test_drive_threads_do_not_change_the_result(monkeypatch) -> None:
+    prof = load_profile(SEED004)  # x and y
+    n = max(drives._PARALLEL_SAMPLES, 120_000)
+    t = np.arange(n) * prof.machine.servo_period_s
+    ref = np.column_stack([30 * np.sin(0.7 * t), 20 * np.sin(1.3 * t) + 2 * t, np.zeros(n)])
+    sizes: list[int] = []
+    monkeypatch.setattr(drives, "ThreadPoolExecutor", _Recorder(sizes))
+    with _threads.thread_limit_scope(1):
+        one = drives.simulate_drives(ref, prof)
+    with _threads.thread_limit_scope(2):
+        two = drives.simulate_drives(ref, prof)
+    assert sizes == [2]
+    np.testing.assert_array_equal(one, two)
+

@@ -212,7 +212,7 @@ def test_path_weighted_kernel_matches_its_numpy_form_on_a_cam_program() -> None:
     joined = np.all(np.abs(path.end_mm[:-1] - path.start_mm[1:]) <= 1e-9, axis=1)
     k_start = np.concatenate([[-1], np.where(joined, cmd[:-1], -1)]).astype(np.int64)
     ce._path_weighted_numpy(np.asarray(err.seg, dtype=np.int64), err.u, err.vector_mm, err.dist_mm,
-                            sim.feed_mask, True, np.zeros(1), sim.reference.period_s, cmd, k_start, num, den, tnum)
+                            sim.feed_mask, True, np.zeros(1), sim.reference.period_s, 0, cmd, k_start, num, den, tnum)
     has = den > 0
     assert has.sum() > 0.9 * prog.n_commands
     assert np.allclose(e_k[has], num[has] / den[has, None], rtol=1e-9, atol=1e-15)
