@@ -131,10 +131,12 @@ def simulate(
                 raise InputError(schedule, None, f"--schedule-axis {schedule_axis!r} is not an axis of the profile"
                                                  f" ({', '.join(prof.axes)})")
             gains = {schedule_axis: read_schedule(schedule)}
-        if as_json or gains is not None:
+        if gains is not None:
             result = sim_mod.simulate_program(prog, prof, against=orig, gain_schedule=gains)
+        elif as_json:
+            result = _simulate(prog, prof, orig, out is not None)
         else:
-            result = _simulate_with_progress(sim_mod, prog, prof, orig, console)
+            result = _simulate_with_progress(prog, prof, orig, console, out is not None)
         if out is not None:
             protect = (program, profile) + ((against,) if against is not None else ())
             write_axis_log(out, result.axis_log(), protect=protect)
@@ -146,7 +148,18 @@ def simulate(
     _print_simulation(result, prog, console, out)
 
 
-def _simulate_with_progress(sim_mod, prog, prof, orig, console):
+def _simulate(prog, prof, orig, samples: bool, progress=None):
+    """A run of the virtual CNC: every sample when they are written (``samples``), else only its figures
+    (chunk by chunk where the profile allows: bounded memory, :mod:`ilcnc.stream`)."""
+    from ilcnc.simulate import simulate_program
+    from ilcnc.stream import simulate_figures
+
+    if samples:
+        return simulate_program(prog, prof, against=orig, progress=progress)
+    return simulate_figures(prog, prof, against=orig, progress=progress)
+
+
+def _simulate_with_progress(prog, prof, orig, console, samples: bool):
     """Run the virtual CNC with a progress bar over its stages (shown on a terminal only)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -158,7 +171,7 @@ def _simulate_with_progress(sim_mod, prog, prof, orig, console):
         def advance(stage: str) -> None:
             bar.update(task, completed=stages.index(stage), description=stage)
 
-        result = sim_mod.simulate_program(prog, prof, against=orig, progress=advance)
+        result = _simulate(prog, prof, orig, samples, progress=advance)
         bar.update(task, completed=len(stages))
     return result
 
@@ -169,7 +182,7 @@ def _print_simulation(result, prog, console, out: Path | None) -> None:
     t = Table(title=f"virtual CNC: {prog.path.name}", show_header=False)
     t.add_column("what")
     t.add_column("value")
-    t.add_row("samples", f"{result.reference.n_samples} at {result.reference.period_s * 1e3:g} ms")
+    t.add_row("samples", f"{result.n_samples} at {result.period_s * 1e3:g} ms")
     t.add_row("cycle time (s)", f"{result.cycle_time_s:.2f}")
     for key in ("max", "mean", "rms"):
         t.add_row(f"contour error {key} (µm)", f"{result.stats[key] * 1e3:.2f}")
@@ -365,7 +378,17 @@ def tune(
     f_max: Annotated[float, typer.Option("--f-max", min=0.1, help="Upper end of the band for the time method, Hz.")] = 100.0,
     f_min: Annotated[float, typer.Option("--f-min", min=0.0, help="Lower end of the band (> 0 frees K_Il), Hz.")] = 0.0,
     lead_max: Annotated[int, typer.Option("--lead-max", min=0, max=100, help="Largest lead eta tried, servo periods.")] = 3,
-    axis: Annotated[str, typer.Option("--axis", help="Axis of the gain schedule (schedule method).")] = "z",
+    axis: Annotated[
+        str | None, typer.Option("--axis", help="Axis of the gain schedule (default: tuning.schedule.axis, else z).")
+    ] = None,
+    horizon: Annotated[
+        int | None, typer.Option("--horizon", min=1, max=10000,
+                                 help="Schedule: prediction horizon Np, servo periods (default: tuning.schedule).")
+    ] = None,
+    lam: Annotated[
+        float | None, typer.Option("--lambda", min=0.0, max=1e6,
+                                   help="Schedule: weight lambda of the gain increment (default: tuning.schedule).")
+    ] = None,
     write: Annotated[bool, typer.Option("--write", help="Store converging gains in the profile (keeps comments).")] = False,
     out: Annotated[Path | None, typer.Option("--out", help="With --write: write the profile here instead.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
@@ -378,7 +401,8 @@ def tune(
         raise typer.Exit(2)
     try:
         report = tune_profile(profile, method=method, program=program, write=write, out=out, f_min_hz=f_min,
-                              f_max_hz=f_max, lead_max=lead_max, fix_ki=f_min <= 0.0, axis=axis.lower())
+                              f_max_hz=f_max, lead_max=lead_max, fix_ki=f_min <= 0.0,
+                              axis=axis.lower() if axis is not None else None, horizon=horizon, lam=lam)
     except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -413,14 +437,13 @@ def check(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Exit 1 when the simulated contour error of PROGRAM exceeds a threshold (a CI regression gate)."""
-    from ilcnc import simulate as sim_mod
     from ilcnc.profile import load_profile
     from ilcnc.program import read_program
 
     try:
         prof = load_profile(profile)
         prog = read_program(program, default_units=prof.machine.units)
-        result = sim_mod.simulate_program(prog, prof)
+        result = _simulate(prog, prof, None, False)
     except IlcncError as exc:
         _fail(exc)
     st = result.stats

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from ilcnc._jit import HAVE_NUMBA, njit
 from ilcnc.profile import MachineProfile
-from ilcnc.program.model import Program
+from ilcnc.program.model import MOVE_RAPID, Program
 
 __all__ = [
     "DEFAULT_ERROR",
@@ -242,6 +242,9 @@ class PathWeightedSums:
         if nseg > 1:
             joined = np.all(np.abs(path.end_mm[:-1] - path.start_mm[1:]) <= 1e-9, axis=1)
             k_start[1:] = np.where(joined, cmd[:-1], -1)
+        # a sample whose foot is on a rapid (the tool still on the rapid's line as the feed move starts: in
+        # the air) is no error of the cut: no command's E(k)
+        k_start[np.asarray(path.kind) == MOVE_RAPID] = -1
         self.cmd, self.k_start = cmd, k_start
         self.num = np.zeros((kk, 3))
         self.den = np.zeros(kk)

@@ -159,12 +159,14 @@ def measure_log(
             raise LogError(src, None, f"{share:.0%} of the log's samples run lines that hold no move of {ran.path.name}"
                            f" (e.g. line {bad}): it is a log of another program")
     mv = sample_moves(log, ran)
-    path = PathGeometry.from_moves(original.moves)
+    # the path with its rapids: a feed sample still on the line of the rapid before it (LinuxCNC starts a
+    # plunge while the axes lag behind the rapid) is in the air, not off the cut (simulate does the same)
+    path = PathGeometry.from_moves(original.moves, include_rapids=True)
     if (mv >= 0).any():
         hint = np.where(mv >= 0, mv, int(mv[mv >= 0][0]))
         mv_or_first = hint
     else:
-        hint = guess_hints(path, act)
+        hint = guess_hints(PathGeometry.from_moves(original.moves), act)
         mv_or_first = np.maximum.accumulate(hint)
         mv = mv_or_first
     err = contour_error(path, act, hint)

@@ -237,6 +237,7 @@ def plan_program(program: object, profile: MachineProfile, *, mode: str | None =
         mode=mode or profile.planner.profile,
         corner_tolerance_mm=profile.planner.corner_tolerance_mm,
         jerk_time_constant_s=profile.planner.jerk_time_constant_s,
+        in_position_s=profile.planner.in_position_s,
     )
 
 
@@ -395,7 +396,7 @@ def plan_chunks(program: object, profile: MachineProfile, *, chunk_samples: int 
     chunk = max(int(chunk_samples), _BLOCK)
     chunk -= chunk % _BLOCK
     pieces = _plan_pieces(moves, limits, period_s, mode, profile.planner.corner_tolerance_mm,
-                          profile.planner.jerk_time_constant_s, IN_POSITION_S, 12, chunk)
+                          profile.planner.jerk_time_constant_s, profile.planner.in_position_s, 12, chunk)
     buf_pos = np.empty((chunk, 3))
     buf_mv = np.empty(chunk, dtype=np.int32)
     fill = 0

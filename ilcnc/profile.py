@@ -44,6 +44,7 @@ __all__ = [
     "AXIS_NAMES",
     "DRIVE_MODELS",
     "MAX_COEFFS",
+    "MAX_DK_CANDIDATES",
     "MM_PER_INCH",
     "SPECS",
     "AxisProfile",
@@ -57,9 +58,11 @@ __all__ = [
     "OutputSection",
     "PFfFrictionDrive",
     "PlannerSection",
+    "ScheduleTuning",
     "SopdtDrive",
     "Spec",
     "TransferFunctionDrive",
+    "TuningSection",
     "default_profile",
     "has_position_loop",
     "load_profile",
@@ -107,7 +110,8 @@ class Spec:
         ``"range_pair"`` (a list ``[min, max]`` with min < max),
         ``"axis_pair"`` (a list of two different axis names) or
         ``"coeffs"`` (a list of 1 to :data:`MAX_COEFFS` finite polynomial
-        coefficients, the first non-zero).
+        coefficients, the first non-zero) or ``"numbers"`` (a list of 1 to
+        :data:`MAX_DK_CANDIDATES` finite numbers within ``lo``/``hi``).
     doc : str
         One-sentence description (goes into ``docs/profile.md``).
     unit : str
@@ -508,6 +512,15 @@ SPECS: tuple[Spec, ...] = (
         default="tolerance",
     ),
     _f(
+        "planner.in_position_s",
+        "Stand-still between a group of rapids and a group of feed moves (the in-position check many CNCs make"
+        " after G0, so the drives settle before the cut); 0: the feed move starts as the rapid ends (LinuxCNC).",
+        "s",
+        0,
+        10,
+        default=0.1,
+    ),
+    _f(
         "planner.lookahead_blocks",
         "Number of blocks the look-ahead plans ahead.",
         "",
@@ -742,7 +755,84 @@ SPECS: tuple[Spec, ...] = (
         when=_CUT_M,
         default_doc="none (needs cutting.stock)",
     ),
+    # tuning (issue 7) ----------------------------------------------------------
+    _sec("tuning", "Settings of `ilcnc tune` that belong to the machine rather than to one run."),
+    _sec(
+        "tuning.schedule",
+        "The receding-horizon gain schedule of `tune --method schedule` (seed 001): a per-servo-period position"
+        " gain K_p of one p_ff_friction axis, chosen at every period among K_{k-1} + ΔK by"
+        " J = ε̂ᵀε̂ + λ·ΔK² over Np samples (eqs. 3-5).",
+    ),
+    Spec(
+        "tuning.schedule.axis",
+        "choice",
+        "The scheduled axis (it must be defined under axes and have a p_ff_friction drive when the schedule runs);"
+        " absent: z if defined, else the last axis defined.",
+        default=None,
+        choices=AXIS_NAMES,
+        default_doc="z (else the last axis)",
+    ),
+    _f(
+        "tuning.schedule.horizon_samples",
+        "Prediction horizon Np in servo periods: each candidate gain is held over Np periods of the nonlinear"
+        " axis model and the predicted contour errors are summed squared (seed 001: Np = 50).",
+        "",
+        1,
+        10000,
+        default=50,
+        kind="int",
+    ),
+    _f(
+        "tuning.schedule.lambda",
+        "Weight λ of the gain increment in J = ε̂ᵀε̂ + λ·ΔK², with ε̂ in mm and ΔK in (m/min)/mm (seed 001:"
+        " λ = 0.01; the paper gives no units); 0: no penalty.",
+        "mm²/((m/min)/mm)²",
+        0,
+        1e6,
+        default=0.01,
+    ),
+    Spec(
+        "tuning.schedule.dk_candidates",
+        "numbers",
+        "The gain increments ΔK tried at every period (seed 001: -0.05 to 0.05 in steps of 0.01); distinct,"
+        " and 0 must be one of them (holding the gain is always a candidate, so a gain inside the range always"
+        " has a choice that stays inside it).",
+        unit="(m/min)/mm",
+        default=(-0.05, -0.04, -0.03, -0.02, -0.01, 0.0, 0.01, 0.02, 0.03, 0.04, 0.05),
+        lo=-10,
+        hi=10,
+    ),
+    _f(
+        "tuning.schedule.kp_min_m_min_mm",
+        "Lower end of the gain range (eq. 6: the stable range, phase margin > 70°, gain margin > 10 dB; seed"
+        " 001's C2: 1); must be < kp_max_m_min_mm.",
+        "(m/min)/mm",
+        0,
+        100,
+        lo_open=True,
+        default=1.0,
+    ),
+    _f(
+        "tuning.schedule.kp_max_m_min_mm",
+        "Upper end of the gain range (seed 001's C2: 2.7 inside the stable [1, 3]).",
+        "(m/min)/mm",
+        0,
+        100,
+        lo_open=True,
+        default=2.7,
+    ),
+    _c(
+        "tuning.schedule.kinematics",
+        "How the axis's V, A, J limits restrict ΔK (eqs. 8-10): predicted (the next displacement the model"
+        " predicts for the candidate), eq10 (the paper's bound with the velocity loop taken as 1, its division by"
+        " E_Z guarded) or none.",
+        ("predicted", "eq10", "none"),
+        default="predicted",
+    ),
 )
+
+#: Most candidates ``tuning.schedule.dk_candidates`` may list.
+MAX_DK_CANDIDATES = 101
 
 _TOP_SECTIONS: tuple[str, ...] = tuple(s.path for s in SPECS if not s.parent)
 _SELECTORS: frozenset[str] = frozenset(s.when[0] for s in SPECS if s.when)
@@ -1076,6 +1166,8 @@ class PlannerSection:
         Corner tolerance, mm.
     path_control : str
         ``"tolerance"``, ``"g64"``, ``"g61"`` or ``"g61.1"``: the mode of moves the program sets none for.
+    in_position_s : float
+        Stand-still between rapids and feed moves, s.
     lookahead_blocks : int
         Look-ahead depth in blocks.
     jerk_time_constant_s : float
@@ -1087,6 +1179,7 @@ class PlannerSection:
     profile: str = _default("planner.profile")
     corner_tolerance_mm: float = _default("planner.corner_tolerance_mm")
     path_control: str = _default("planner.path_control")
+    in_position_s: float = _default("planner.in_position_s")
     lookahead_blocks: int = _default("planner.lookahead_blocks")
     jerk_time_constant_s: float = _default("planner.jerk_time_constant_s")
     arc_tolerance_mm: float = _default("planner.arc_tolerance_mm")
@@ -1269,6 +1362,61 @@ class CuttingSection:
 
 
 @dataclass(frozen=True)
+class ScheduleTuning:
+    """The ``tuning.schedule:`` section (seed 001's receding-horizon gain schedule).
+
+    Parameters
+    ----------
+    axis : str or None
+        The scheduled axis; ``None``: z if defined, else the last axis (see :meth:`MachineProfile.schedule_axis`).
+    horizon_samples : int
+        Prediction horizon Np, servo periods.
+    lam : float
+        λ of ``J = ε̂ᵀε̂ + λ ΔK²`` (ε̂ in mm, ΔK in (m/min)/mm); YAML key ``lambda``.
+    dk_candidates : tuple of float
+        Gain increments ΔK tried per period, (m/min)/mm (distinct, 0 among them).
+    kp_min_m_min_mm, kp_max_m_min_mm : float
+        Gain range, (m/min)/mm, min < max.
+    kinematics : str
+        ``"predicted"``, ``"eq10"`` or ``"none"``.
+    """
+
+    axis: str | None = _default("tuning.schedule.axis")
+    horizon_samples: int = _default("tuning.schedule.horizon_samples")
+    lam: float = _default("tuning.schedule.lambda")
+    dk_candidates: tuple[float, ...] = _default("tuning.schedule.dk_candidates")
+    kp_min_m_min_mm: float = _default("tuning.schedule.kp_min_m_min_mm")
+    kp_max_m_min_mm: float = _default("tuning.schedule.kp_max_m_min_mm")
+    kinematics: str = _default("tuning.schedule.kinematics")
+
+    @property
+    def kp_range(self) -> tuple[float, float]:
+        """``(kp_min_m_min_mm, kp_max_m_min_mm)``."""
+        return (self.kp_min_m_min_mm, self.kp_max_m_min_mm)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The section as YAML data (key ``lambda`` for :attr:`lam`; ``axis`` only when set)."""
+        out: dict[str, Any] = {} if self.axis is None else {"axis": self.axis}
+        out.update({"horizon_samples": self.horizon_samples, "lambda": self.lam,
+                    "dk_candidates": list(self.dk_candidates), "kp_min_m_min_mm": self.kp_min_m_min_mm,
+                    "kp_max_m_min_mm": self.kp_max_m_min_mm, "kinematics": self.kinematics})
+        return out
+
+
+@dataclass(frozen=True)
+class TuningSection:
+    """The ``tuning:`` section.
+
+    Parameters
+    ----------
+    schedule : ScheduleTuning
+        Settings of ``tune --method schedule``.
+    """
+
+    schedule: ScheduleTuning = field(default_factory=ScheduleTuning)
+
+
+@dataclass(frozen=True)
 class MachineProfile:
     """A validated machine profile.
 
@@ -1281,6 +1429,10 @@ class MachineProfile:
     planner : PlannerSection
     learning : LearningSection
     output : OutputSection
+    geometry : GeometrySection
+    tool : ToolSection
+    cutting : CuttingSection
+    tuning : TuningSection
     path : Path or None
         The file it was read from (not compared).
     source_text : str
@@ -1296,6 +1448,7 @@ class MachineProfile:
     geometry: GeometrySection = field(default_factory=GeometrySection)
     tool: ToolSection = field(default_factory=ToolSection)
     cutting: CuttingSection = field(default_factory=CuttingSection)
+    tuning: TuningSection = field(default_factory=TuningSection)
     path: Path | None = field(default=None, compare=False)
     source_text: str = field(default="", compare=False, repr=False)
 
@@ -1321,6 +1474,15 @@ class MachineProfile:
     def axis_names(self) -> tuple[str, ...]:
         """The defined axis names in x, y, z order."""
         return tuple(self.axes)
+
+    @property
+    def schedule_axis(self) -> str:
+        """The axis ``tune --method schedule`` schedules: ``tuning.schedule.axis``, else z if defined, else the
+        last axis defined."""
+        a = self.tuning.schedule.axis
+        if a is not None:
+            return a
+        return "z" if "z" in self.axes else self.axis_names[-1]
 
     def min_decimals(self, units: str) -> int:
         """Least number of decimals to write for a corrected coordinate.
@@ -1398,6 +1560,7 @@ class MachineProfile:
                 "profile": p.profile,
                 "corner_tolerance_mm": p.corner_tolerance_mm,
                 "path_control": p.path_control,
+                "in_position_s": p.in_position_s,
                 "lookahead_blocks": p.lookahead_blocks,
                 "jerk_time_constant_s": p.jerk_time_constant_s,
                 "arc_tolerance_mm": p.arc_tolerance_mm,
@@ -1408,7 +1571,8 @@ class MachineProfile:
         }
 
     def _error_model_dict(self) -> dict[str, Any]:
-        """The geometry / tool / cutting sections as plain data (only those that differ from the defaults)."""
+        """The geometry / tool / cutting / tuning sections as plain data (only those that differ from the
+        defaults)."""
         out: dict[str, Any] = {}
         g, t, c = self.geometry, self.tool, self.cutting
         if g != GeometrySection():
@@ -1422,6 +1586,8 @@ class MachineProfile:
             out["tool"] = tool
         if c != CuttingSection():
             out["cutting"] = {k: v for k, v in vars(c).items() if v is not None}
+        if self.tuning != TuningSection():
+            out["tuning"] = {"schedule": self.tuning.schedule.to_dict()}
         return out
 
     def to_yaml(self) -> str:
@@ -1704,6 +1870,8 @@ class _Validator:
             return (v[0], v[1])
         if kind == "coeffs":
             return self.coeffs(spec, path, v)
+        if kind == "numbers":
+            return self.numbers(spec, path, v)
         if kind == "modes":
             return self.modes(path, v)
         raise AssertionError(kind)  # pragma: no cover
@@ -1721,6 +1889,16 @@ class _Validator:
                 self.fail((*path, str(i)), f"{want}, got {_got(e)}", line_path=path)
         if v[0] == 0:
             self.fail(path, f"{want}, got a leading 0")
+        return tuple(float(e) for e in v)
+
+    def numbers(self, spec: Spec, path: tuple[str, ...], v: Any) -> tuple[float, ...]:
+        """Validate a list of finite numbers within the spec's range."""
+        want = f"must be a list of 1 to {MAX_DK_CANDIDATES} finite numbers {spec.range_text()}"
+        if not isinstance(v, (list, tuple)) or not 1 <= len(v) <= MAX_DK_CANDIDATES:
+            self.fail(path, f"{want}, got {_got(v) if not isinstance(v, (list, tuple)) else f'{len(v)} items'}")
+        for i, e in enumerate(v):
+            if not _is_number(e) or not math.isfinite(e) or not self.in_range(spec, e):
+                self.fail(path, f"{want}, got {_got(e)} (item {i})")
         return tuple(float(e) for e in v)
 
     def modes(self, path: tuple[str, ...], v: Any) -> tuple[ToolMode, ...]:
@@ -1853,6 +2031,7 @@ def _cross_checks(d: dict[str, Any], fail: _Fail) -> None:
                         f"missing; a per-axis gain must give every axis ({names}) or be one number",
                         line_path=("learning", "gains", name),
                     )
+    _schedule_checks(d["tuning"]["schedule"], names, axes, fail)
     for ax, a in axes.items():
         drv = a["drive"]
         p = ("axes", ax, "drive")
@@ -1876,6 +2055,26 @@ def _cross_checks(d: dict[str, Any], fail: _Fail) -> None:
                 f"must be > 0 ({rng}) when static_n > coulomb_n, got {_num(drv['stribeck_velocity_mm_s'])}",
                 line_path=p if (*p, "stribeck_velocity_mm_s") not in fail.lines else None,
             )
+
+
+def _schedule_checks(sch: dict[str, Any], names: str, axes: dict[str, Any], fail: _Fail) -> None:
+    """``tuning.schedule``: a defined axis, kp_min < kp_max, distinct ΔK candidates that include 0."""
+    p = ("tuning", "schedule")
+    if sch["axis"] is not None and sch["axis"] not in axes:
+        fail((*p, "axis"), f"axis {sch['axis']} is not defined under axes (defined: {names})")
+    if not sch["kp_min_m_min_mm"] < sch["kp_max_m_min_mm"]:
+        fail(
+            (*p, "kp_min_m_min_mm"),
+            f"must be < kp_max_m_min_mm ({_num(sch['kp_max_m_min_mm'])}), got {_num(sch['kp_min_m_min_mm'])}",
+            line_path=(*p, "kp_min_m_min_mm") if (*p, "kp_min_m_min_mm") in fail.lines else (*p, "kp_max_m_min_mm"),
+        )
+    dk = sch["dk_candidates"]
+    shown = "[" + ", ".join(_num(x) for x in dk) + "]"
+    if 0.0 not in dk:
+        fail((*p, "dk_candidates"), f"must include 0 (holding the gain is always a candidate), got {shown}")
+    if len(set(dk)) != len(dk):
+        dup = next(x for i, x in enumerate(dk) if x in dk[:i])
+        fail((*p, "dk_candidates"), f"must be distinct, got {_num(dup)} twice in {shown}")
 
 
 def _transfer_function_checks(drv: dict[str, Any], p: tuple[str, ...], fail: _Fail) -> None:
@@ -1924,6 +2123,8 @@ def _build(d: dict[str, Any], path: Path | None, text: str) -> MachineProfile:
         geometry=GeometrySection(**d["geometry"]),
         tool=ToolSection(**d["tool"]),
         cutting=CuttingSection(**d["cutting"]),
+        tuning=TuningSection(schedule=ScheduleTuning(**{("lam" if k == "lambda" else k): v
+                                                          for k, v in d["tuning"]["schedule"].items()})),
         path=path,
         source_text=text,
     )
@@ -2085,6 +2286,7 @@ def _doc_type(s: Spec) -> str:
         "range_pair": "[min, max]",
         "axis_pair": "[axis, axis]",
         "coeffs": "[number, ...]",
+        "numbers": "[number, ...]",
         "modes": "list of modes",
     }[s.kind]
 
@@ -2114,6 +2316,8 @@ def schema_markdown() -> str:
                     rng = f"1 to {MAX_COEFFS} finite numbers, the first non-zero"
                 if s.kind == "axis_pair":
                     rng = "two different of " + ", ".join(AXIS_NAMES)
+                if s.kind == "numbers":
+                    rng = f"1 to {MAX_DK_CANDIDATES} numbers {s.range_text()}"
                 lines.append(
                     f"| `{s.path}` | {_doc_type(s)} | {s.unit or '—'} | {rng or '—'} | {_doc_default(s)} | {desc} |"
                 )

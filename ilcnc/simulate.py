@@ -172,7 +172,9 @@ def simulate_program(
     timings["drives"] = time.perf_counter() - t0
     if sources is None:
         sources = ErrorSources.from_profile(profile)
-    path = PathGeometry.from_moves(target.moves)
+    # the path with its rapids: a feed sample still on the line of the rapid before it is in the air, not off
+    # the cut (its E(k) counts for no command: command_error.PathWeightedSums)
+    path = PathGeometry.from_moves(target.moves, include_rapids=True)
     rapid = target.moves.kind == MOVE_RAPID
     # the search reaches as far along the path as the machine lags behind its reference (contour.py): the
     # reference may leave its move by the corner tolerance, and a compensated program's moves lie off the

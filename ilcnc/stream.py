@@ -151,7 +151,9 @@ def simulate_streamed(
     _check_travel(program, profile)
     if progress:
         progress("plan")
-    path = PathGeometry.from_moves(target.moves)
+    # the path with its rapids: a feed sample still on the line of the rapid before it is in the air, not off
+    # the cut (its E(k) counts for no command: command_error.PathWeightedSums)
+    path = PathGeometry.from_moves(target.moves, include_rapids=True)
     rapid = target.moves.kind == MOVE_RAPID
     slack: Any = profile.planner.corner_tolerance_mm
     if against is not None:

@@ -45,7 +45,9 @@ Three methods, one per learning law of the profile (``ilcnc tune``):
     instant among ``K_{k−1} + ΔK`` by the cost ``J = ε̂ᵀε̂ + λ ΔK²`` of the
     contour error predicted over ``Np`` samples (eqs. 3-5) with the nonlinear
     (friction) axis model, kept in the stable range (eqs. 6-7) and within the
-    kinematic limits (eqs. 8-10, with eq. 10's division by ``E_Z`` guarded).
+    kinematic limits (eqs. 8-10, with eq. 10's division by ``E_Z`` guarded). Np, λ, the ΔK
+    candidates, the gain range and the axis come from the profile's ``tuning.schedule`` (seed 001's
+    values by default).
 
 :func:`tune_profile` is what ``ilcnc tune`` calls: it picks the method from
 the profile's law, runs it and, with ``write=True``, stores the gains in the
@@ -1203,7 +1205,8 @@ class _one_blas_thread:
 _KP_TO_1_S = 1000.0 / 60.0
 #: Kinematic check modes of the schedule kernel.
 _KIN_MODES = {"none": 0, "predicted": 1, "eq10": 2}
-#: Seed 001's gain increments ΔK per period, (m/min)/mm: -0.05 to 0.05 in steps of 0.01.
+#: Seed 001's gain increments ΔK per period, (m/min)/mm: -0.05 to 0.05 in steps of 0.01 (the default of the
+#: profile key ``tuning.schedule.dk_candidates``).
 DEFAULT_DK = np.round(np.arange(-0.05, 0.051, 0.01), 12)
 #: Reference segments searched on either side of the hint for the predicted contour error.
 _SCHEDULE_SEARCH = 20
@@ -1329,6 +1332,7 @@ def _schedule_kernel_py(dev, vref, r0, other, ai, pa, pb, hint, w, k0, kmin, kma
         best_cost = 1e300
         best_viol = 1e300
         best_k = kprev
+        best_dk = 1e300
         any_ok = False
         excluded = False
         for c in range(nc):
@@ -1373,15 +1377,19 @@ def _schedule_kernel_py(dev, vref, r0, other, ai, pa, pb, hint, w, k0, kmin, kma
                     cost += e * e
             if viol > 0.0:
                 excluded = True
+            # equal costs (the gain cannot move the axis: at rest, or stuck in friction): the smallest |ΔK|
+            tie = cost == best_cost and abs(dks[c]) < abs(best_dk)
             if viol == 0.0:
-                if not any_ok or cost < best_cost:
+                if not any_ok or cost < best_cost or tie:
                     best_cost = cost
                     best_k = kc
+                    best_dk = dks[c]
                 any_ok = True
-            elif not any_ok and (viol < best_viol or (viol == best_viol and cost < best_cost)):
+            elif not any_ok and (viol < best_viol or (viol == best_viol and (cost < best_cost or tie))):
                 best_viol = viol
                 best_cost = cost
                 best_k = kc
+                best_dk = dks[c]
         if excluded:
             n_limited += 1
         if not any_ok:
@@ -1572,11 +1580,15 @@ def schedule_on_samples(t_s: NDArray[np.float64], kp: NDArray[np.float64], n: in
     return np.asarray(kp, dtype=np.float64)[np.clip(i, 0, len(kp) - 1)]
 
 
-def schedule_gains(program: Any, profile: MachineProfile, *, axis: str = "z",
-                   kp_range: tuple[float, float] = (1.0, 2.7), horizon: int = 50, lam: float = 0.01,
-                   dk: ArrayLike = DEFAULT_DK, kp0: float | None = None,
-                   kinematics: str = "predicted") -> ScheduleResult:
+def schedule_gains(program: Any, profile: MachineProfile, *, axis: str | None = None,
+                   kp_range: tuple[float, float] | None = None, horizon: int | None = None, lam: float | None = None,
+                   dk: ArrayLike | None = None, kp0: float | None = None,
+                   kinematics: str | None = None) -> ScheduleResult:
     """Receding-horizon offline adjustment of a per-instant position gain of one axis (seed 001).
+
+    Every setting left at ``None`` is taken from the profile's ``tuning.schedule`` section
+    (:class:`ilcnc.profile.ScheduleTuning`; seed 001's values by default: z, [1, 2.7], Np 50, λ 0.01,
+    ΔK -0.05..0.05 step 0.01, ``predicted``).
 
     Parameters
     ----------
@@ -1585,20 +1597,21 @@ def schedule_gains(program: Any, profile: MachineProfile, *, axis: str = "z",
     profile : MachineProfile
         The machine; ``axis`` must have a ``p_ff_friction`` drive. The other
         axes run with their fixed gains.
-    axis : str
-        The scheduled axis.
-    kp_range : (float, float)
+    axis : str, optional
+        The scheduled axis (``tuning.schedule.axis``; absent there: z, else the last axis).
+    kp_range : (float, float), optional
         Gain range, (m/min)/mm (eq. 6: the stable range; seed 001's C2: [1, 2.7]).
-    horizon : int
-        Np, servo periods.
-    lam : float
-        λ of ``J = ε̂ᵀε̂ + λ ΔK²`` with ε̂ in mm and ΔK in (m/min)/mm.
-    dk : array_like
-        Candidate increments ΔK per period, (m/min)/mm.
+    horizon : int, optional
+        Np, servo periods (>= 1).
+    lam : float, optional
+        λ of ``J = ε̂ᵀε̂ + λ ΔK²`` with ε̂ in mm and ΔK in (m/min)/mm (>= 0).
+    dk : array_like, optional
+        Candidate increments ΔK per period, (m/min)/mm. Where candidates cost the same (the gain
+        cannot move the axis: at rest, or stuck in friction) the smallest |ΔK| is taken.
     kp0 : float, optional
         Gain before the first period (default: the drive's ``kp_m_min_mm``), which is
         also the fixed gain of the comparison run C1.
-    kinematics : {"predicted", "eq10", "none"}
+    kinematics : {"predicted", "eq10", "none"}, optional
         How the kinematic limits (V, A, J of the axis, eq. 2) restrict ΔK:
         ``predicted`` checks the displacement of the next period that the model
         predicts for the candidate; ``eq10`` is the paper's bound on ΔK from the
@@ -1618,6 +1631,13 @@ def schedule_gains(program: Any, profile: MachineProfile, *, axis: str = "z",
     from ilcnc.program.model import MOVE_RAPID
 
     t0 = time.perf_counter()
+    cfg = profile.tuning.schedule
+    axis = profile.schedule_axis if axis is None else axis
+    kp_range = cfg.kp_range if kp_range is None else kp_range
+    horizon = cfg.horizon_samples if horizon is None else horizon
+    lam = cfg.lam if lam is None else lam
+    dk = cfg.dk_candidates if dk is None else dk
+    kinematics = cfg.kinematics if kinematics is None else kinematics
     if axis not in profile.axes:
         raise ValueError(f"axis {axis!r} is not in the profile")
     drive = profile.axes[axis].drive
@@ -1631,8 +1651,12 @@ def schedule_gains(program: Any, profile: MachineProfile, *, axis: str = "z",
     if not (0 < kmin <= kmax):
         raise ValueError(f"kp_range must satisfy 0 < min <= max, got {kp_range}")
     dks = np.round(np.asarray(dk, dtype=np.float64), 12)
-    if dks.ndim != 1 or dks.size == 0:
-        raise ValueError("dk must be a non-empty 1-D array")
+    if dks.ndim != 1 or dks.size == 0 or not np.all(np.isfinite(dks)):
+        raise ValueError("dk must be a non-empty 1-D array of finite numbers")
+    if int(horizon) != horizon or horizon < 1:
+        raise ValueError(f"horizon must be an integer >= 1, got {horizon}")
+    if not (math.isfinite(lam) and lam >= 0):
+        raise ValueError(f"lam must be >= 0, got {lam}")
     k_fixed = float(drive.kp_m_min_mm if kp0 is None else kp0)
     period = profile.machine.servo_period_s
     ref = plan_program(program, profile)
@@ -1811,8 +1835,8 @@ def tune_profile(profile_path: str | Path, *, method: str = "auto", program: Any
                  out: str | Path | None = None, f_min_hz: float = 0.0, f_max_hz: float = DEFAULT_F_MAX_HZ,
                  lead_max: int = 3, fix_ki: bool = True, gamma: float | None = None, q_filter_hz: float | None = None,
                  commands: tuple[int, int] | None = None, max_commands: int = DEFAULT_MAX_COMMANDS,
-                 axis: str = "z", kp_range: tuple[float, float] = (1.0, 2.7), horizon: int = 50, lam: float = 0.01,
-                 dk: ArrayLike = DEFAULT_DK, kinematics: str = "predicted",
+                 axis: str | None = None, kp_range: tuple[float, float] | None = None, horizon: int | None = None,
+                 lam: float | None = None, dk: ArrayLike | None = None, kinematics: str | None = None,
                  schedule_csv: str | Path | None = None) -> TuneReport:
     """Design or check the learning gains of a profile (``ilcnc tune``).
 
@@ -1840,7 +1864,7 @@ def tune_profile(profile_path: str | Path, *, method: str = "auto", program: Any
     gamma, q_filter_hz, commands, max_commands :
         See :func:`check_lifted`.
     axis, kp_range, horizon, lam, dk, kinematics :
-        See :func:`schedule_gains`.
+        See :func:`schedule_gains`; ``None`` (the default): the profile's ``tuning.schedule`` values.
     schedule_csv : str or Path, optional
         Where ``write=True`` puts the schedule.
 
@@ -1916,7 +1940,7 @@ def tune_profile(profile_path: str | Path, *, method: str = "auto", program: Any
         if write:
             if schedule_csv is None:
                 base = prog_path if prog_path is not None else Path("program")
-                schedule_csv = base.with_name(f"{base.stem}.kp-{axis}.csv")
+                schedule_csv = base.with_name(f"{base.stem}.kp-{sch.axis}.csv")
             protect = [ppath] + ([prog_path] if prog_path else [])
             report.schedule_csv = sch.write_csv(schedule_csv, protect=protect)
             report.note = f"schedule written to {report.schedule_csv}"

@@ -23,6 +23,7 @@ from ilcnc.learn import (
 )
 from ilcnc.profile import load_profile, profile_from_dict
 from ilcnc.program import read_program
+from ilcnc.program.model import MOVE_RAPID
 from tests.conftest import REPO, SAMPLES
 
 CONFIGS = REPO / "configs"
@@ -211,6 +212,7 @@ def test_path_weighted_kernel_matches_its_numpy_form_on_a_cam_program() -> None:
     cmd = np.asarray(path.command, dtype=np.int64)
     joined = np.all(np.abs(path.end_mm[:-1] - path.start_mm[1:]) <= 1e-9, axis=1)
     k_start = np.concatenate([[-1], np.where(joined, cmd[:-1], -1)]).astype(np.int64)
+    k_start[path.kind == MOVE_RAPID] = -1  # a foot on a rapid (the tool in the air) counts for no command
     ce._path_weighted_numpy(np.asarray(err.seg, dtype=np.int64), err.u, err.vector_mm, err.dist_mm,
                             sim.feed_mask, True, np.zeros(1), sim.reference.period_s, 0, cmd, k_start, num, den, tnum)
     has = den > 0

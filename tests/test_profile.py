@@ -422,7 +422,7 @@ def test_empty_file(tmp_path: Path, text: str) -> None:
     msg = error_of(tmp_path, text)
     assert msg == (
         f"{tmp_path / 'mill.yaml'}:1: empty profile; expected a mapping with the sections"
-        " machine, axes, controller, planner, learning, output, geometry, tool, cutting"
+        " machine, axes, controller, planner, learning, output, geometry, tool, cutting, tuning"
     )
 
 
@@ -431,7 +431,7 @@ def test_top_level_not_a_mapping(tmp_path: Path, text: str, got: str) -> None:
     msg = error_of(tmp_path, text)
     assert msg.endswith(
         f"mill.yaml:1: the profile must be a mapping with the sections machine, axes, controller,"
-        f" planner, learning, output, geometry, tool, cutting, got {got}"
+        f" planner, learning, output, geometry, tool, cutting, tuning, got {got}"
     )
 
 
@@ -809,3 +809,112 @@ def test_cutting_needs_a_tool_frequency_response(tmp_path: Path) -> None:
         "  modes:\n    - {direction: normal, natural_frequency_hz: 1500, damping_ratio: 0.03, stiffness_n_um: 15}\n", "")
     msg = error_of(tmp_path, text)
     assert "needs the tool's frequency response: tool.modes or tool.frf_csv" in msg, msg
+
+
+# -- tuning.schedule (issue 7, seed 001) ------------------------------------------
+
+SCHEDULE = """\
+tuning:
+  schedule:
+    axis: y
+    horizon_samples: 20
+    lambda: 0.002
+    dk_candidates: [-0.1, 0, 0.1]
+    kp_min_m_min_mm: 1.2
+    kp_max_m_min_mm: 3
+    kinematics: eq10
+"""
+
+
+def test_schedule_tuning_defaults_are_the_papers(tmp_path: Path) -> None:
+    p = load_profile(write(tmp_path, MINIMAL))
+    s = p.tuning.schedule
+    assert s.axis is None and p.schedule_axis == "y"  # no z: the last axis
+    assert default_profile().schedule_axis == "z"
+    assert (s.horizon_samples, s.lam, s.kp_range, s.kinematics) == (50, 0.01, (1.0, 2.7), "predicted")
+    assert s.dk_candidates == pytest.approx([-0.05, -0.04, -0.03, -0.02, -0.01, 0.0, 0.01, 0.02, 0.03, 0.04, 0.05])
+    assert "tuning" not in p.to_dict()  # all defaults: not written
+    seed = load_profile(CONFIGS / "seed001-duong-p-ff-friction.yaml").tuning.schedule
+    assert seed == dataclasses.replace(s, axis="z")
+
+
+def test_schedule_tuning_loads_and_round_trips(tmp_path: Path) -> None:
+    p = load_profile(write(tmp_path, MINIMAL + SCHEDULE))
+    s = p.tuning.schedule
+    assert (s.axis, s.horizon_samples, s.lam, s.dk_candidates) == ("y", 20, 0.002, (-0.1, 0.0, 0.1))
+    assert (s.kp_range, s.kinematics, p.schedule_axis) == ((1.2, 3.0), "eq10", "y")
+    d = p.to_dict()
+    assert d["tuning"]["schedule"]["lambda"] == 0.002
+    assert profile_from_dict(d) == p
+    assert load_profile(write(tmp_path, p.to_yaml(), "again.yaml")) == p
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ("horizon_samples: 20", "horizon_samples: 0", "tuning.schedule.horizon_samples: must be >= 1 and <= 10000, got 0"),
+        (
+            "horizon_samples: 20",
+            "horizon_samples: 2.5",
+            "tuning.schedule.horizon_samples: must be an integer >= 1 and <= 10000, got 2.5",
+        ),
+        ("lambda: 0.002", "lambda: -1", "tuning.schedule.lambda: must be >= 0 and <= 1000000, got -1"),
+        ("lambda: 0.002", "lambda: .nan", "tuning.schedule.lambda: must be a finite number >= 0 and <= 1000000"),
+        (
+            "dk_candidates: [-0.1, 0, 0.1]",
+            "dk_candidates: []",
+            "tuning.schedule.dk_candidates: must be a list of 1 to 101 finite numbers >= -10 and <= 10, got 0 items",
+        ),
+        (
+            "dk_candidates: [-0.1, 0, 0.1]",
+            "dk_candidates: 0.1",
+            "tuning.schedule.dk_candidates: must be a list of 1 to 101 finite numbers >= -10 and <= 10, got 0.1",
+        ),
+        (
+            "dk_candidates: [-0.1, 0, 0.1]",
+            "dk_candidates: [0, .inf]",
+            "tuning.schedule.dk_candidates: must be a list of 1 to 101 finite numbers >= -10 and <= 10, got inf (item 1)",
+        ),
+        (
+            "dk_candidates: [-0.1, 0, 0.1]",
+            "dk_candidates: [0, 11]",
+            "tuning.schedule.dk_candidates: must be a list of 1 to 101 finite numbers >= -10 and <= 10, got 11 (item 1)",
+        ),
+        (
+            "dk_candidates: [-0.1, 0, 0.1]",
+            "dk_candidates: [-0.1, 0.1]",
+            "tuning.schedule.dk_candidates: must include 0 (holding the gain is always a candidate), got [-0.1, 0.1]",
+        ),
+        (
+            "dk_candidates: [-0.1, 0, 0.1]",
+            "dk_candidates: [0, 0.1, 0.1]",
+            "tuning.schedule.dk_candidates: must be distinct, got 0.1 twice in [0, 0.1, 0.1]",
+        ),
+        ("kp_min_m_min_mm: 1.2", "kp_min_m_min_mm: 0", "tuning.schedule.kp_min_m_min_mm: must be > 0 and <= 100, got 0"),
+        (
+            "kp_min_m_min_mm: 1.2",
+            "kp_min_m_min_mm: 3",
+            "tuning.schedule.kp_min_m_min_mm: must be < kp_max_m_min_mm (3), got 3",
+        ),
+        ("kp_max_m_min_mm: 3", "kp_max_m_min_mm: 101", "tuning.schedule.kp_max_m_min_mm: must be > 0 and <= 100, got 101"),
+        ("axis: y", "axis: z", "tuning.schedule.axis: axis z is not defined under axes (defined: x, y)"),
+        ("axis: y", "axis: Z", "tuning.schedule.axis: must be one of x, y, z, got 'Z'"),
+        ("kinematics: eq10", "kinematics: eq9", "tuning.schedule.kinematics: must be one of predicted, eq10, none"),
+        ("kinematics: eq10", "np: 50", "tuning.schedule.np: unknown key; allowed: axis, horizon_samples, lambda,"),
+    ],
+)
+def test_bad_schedule_tuning_names_the_key(tmp_path: Path, old: str, new: str, expected: str) -> None:
+    text = MINIMAL + SCHEDULE
+    assert old in text
+    text = text.replace(old, new)
+    msg = error_of(tmp_path, text)
+    key = new.split(":")[0]
+    assert msg.startswith(f"{tmp_path / 'mill.yaml'}:{line_of(text, new)}: {expected}"), (key, msg)
+
+
+def test_bad_schedule_tuning_from_dict_names_the_key() -> None:
+    d = default_profile().to_dict()
+    d["tuning"] = {"schedule": {"kp_min_m_min_mm": 2.7}}
+    with pytest.raises(ProfileError, match=r"tuning\.schedule\.kp_min_m_min_mm: must be < kp_max_m_min_mm \(2\.7\),"
+                                           r" got 2\.7"):
+        profile_from_dict(d)

@@ -158,3 +158,19 @@ def test_simulate_cli_without_samples_to_write_gives_the_figures_of_the_full_run
                                 "--max-error", "10", "--json"])
     assert check.exit_code == 0 and json.loads(check.output)["contour_error_mm"] == json.loads(full.output)[
         "contour_error_mm"]
+
+
+def test_in_position_wait_after_rapids_is_the_profiles() -> None:
+    """planner.in_position_s: 0.1 s stand-still between rapid and feed groups by default; 0 (LinuxCNC) leaves
+    only the 3-sample separation, so cds.ngc runs 0.097 s shorter per rapid-feed transition."""
+    prog = read_program(CDS)
+    prof = load_profile(CONFIGS / "example-mill.yaml")
+    d = prof.to_dict()
+    d["planner"]["in_position_s"] = 0.0
+    from ilcnc.profile import profile_from_dict
+
+    fast = profile_from_dict(d)
+    t_wait, t_none = planned_duration_s(prog, prof), planned_duration_s(prog, fast)
+    groups = (np.diff((prog.moves.kind == 0).astype(int)) != 0).sum()
+    assert groups > 10
+    assert t_wait - t_none == pytest.approx(groups * (0.1 - 0.003), rel=0.01)
