@@ -590,6 +590,17 @@ def _deflated(model: DiscreteModel) -> tuple[np.ndarray, np.ndarray, float]:
     return np.cumsum(bb - g * aa)[:-1], aa, g
 
 
+def _kernel_coefficients(model: DiscreteModel) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(b, a, g)`` of the deflated form as the compiled kernels take them: C padded to A's length and both
+    divided by ``a[0]``, as ``lfilter`` normalises (empty arrays for a pure gain)."""
+    c, aa, g = _deflated(model)
+    if not len(c):
+        return np.zeros(0), np.zeros(0), float(g)
+    bn = np.zeros(len(aa))
+    bn[: len(c)] = c
+    return bn / aa[0], aa / aa[0], float(g)
+
+
 def _filter_reference(model: DiscreteModel, ref: np.ndarray, out: np.ndarray) -> None:
     """``out = r[0] + H(z)·(r − r[0])`` of one axis in one compiled pass (:func:`_deflated_kernel`).
 
@@ -597,16 +608,8 @@ def _filter_reference(model: DiscreteModel, ref: np.ndarray, out: np.ndarray) ->
     normalises, operation for operation); ``ref`` and ``out`` may be strided columns. Raises
     ``ValueError`` when the reference is not finite.
     """
-    c, aa, g = _deflated(model)
-    if len(c):
-        # lfilter pads b and a to one length and divides both by a[0]
-        bn = np.zeros(len(aa))
-        bn[: len(c)] = c
-        bn = bn / aa[0]
-        an = aa / aa[0]
-    else:
-        bn = an = np.zeros(0)
-    if not _deflated_kernel(ref, out, bn, an, float(g), int(model.delay_samples)):
+    bn, an, g = _kernel_coefficients(model)
+    if not _deflated_kernel(ref, out, bn, an, g, int(model.delay_samples)):
         raise ValueError("the reference contains NaN or infinite values")
 
 
@@ -680,14 +683,7 @@ class _AxisStream:
     """One linear axis run stretch by stretch: the deflated filter's state and the delay line."""
 
     def __init__(self, model: DiscreteModel, r0: float) -> None:
-        c, aa, g = _deflated(model)
-        if len(c):
-            bn = np.zeros(len(aa))
-            bn[: len(c)] = c
-            self.bn, self.an = bn / aa[0], aa / aa[0]
-        else:
-            self.bn = self.an = np.zeros(0)
-        self.g = float(g)
+        self.bn, self.an, self.g = _kernel_coefficients(model)
         self.r0 = float(r0)
         self.z = np.zeros(max(len(self.an) - 1, 1))
         self.st = np.zeros(2)

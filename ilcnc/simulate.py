@@ -97,16 +97,22 @@ class SimulationResult:
         return AxisLog(ref.t_s, ref.command.astype(np.int64), ref.line.astype(np.int64), ref.pos_mm, self.actual_mm)
 
     def to_json(self, program: Program) -> dict[str, Any]:
-        out = {
-            "program": str(program.path),
-            "samples": self.reference.n_samples,
-            "cycle_time_s": self.cycle_time_s,
-            "contour_error_mm": dict(self.stats),
-            "worst": self.worst(program),
-        }
-        if self.shares:
-            out["error_shares_mm"] = {k: dict(v) for k, v in self.shares.items()}
-        return out
+        return run_json(self, program)
+
+
+def run_json(run: Any, program: Program) -> dict[str, Any]:
+    """The JSON object of a run (``simulate --json``): a :class:`SimulationResult` or a streamed run, which
+    both have ``n_samples``, ``cycle_time_s``, ``stats``, ``shares`` and ``worst(program)``."""
+    out = {
+        "program": str(program.path),
+        "samples": run.n_samples,
+        "cycle_time_s": run.cycle_time_s,
+        "contour_error_mm": dict(run.stats),
+        "worst": run.worst(program),
+    }
+    if run.shares:
+        out["error_shares_mm"] = {k: dict(v) for k, v in run.shares.items()}
+    return out
 
 
 def simulate_program(

@@ -79,16 +79,9 @@ class StreamedRun:
 
     def to_json(self, program: Program) -> dict[str, Any]:
         """The object of :meth:`ilcnc.simulate.SimulationResult.to_json`."""
-        out: dict[str, Any] = {
-            "program": str(program.path),
-            "samples": self.n_samples,
-            "cycle_time_s": self.cycle_time_s,
-            "contour_error_mm": dict(self.stats),
-            "worst": self.worst(program),
-        }
-        if self.shares:
-            out["error_shares_mm"] = {k: dict(v) for k, v in self.shares.items()}
-        return out
+        from ilcnc.simulate import run_json
+
+        return run_json(self, program)
 
 
 def stream_unsupported(profile: MachineProfile, kind: str, *, sources: Any = None,
