@@ -54,6 +54,12 @@ def _console():
     return Console()
 
 
+#: Help of ``--log-columns`` (learn, simulate --compare).
+_LOG_COLUMNS_HELP = ("what each column of a halsampler log holds, in file order: names from n line x_ref y_ref z_ref"
+                     " x_act y_act z_act, '-' for a column to skip (default: the ilcnc simulation's"
+                     " 'n line x_ref y_ref z_ref x_act y_act z_act'; docs/linuxcnc.md).")
+
+
 @app.command()
 def inspect(
     program: Annotated[Path, typer.Argument(help="Part program (.nc/.ngc/.tap/.gcode or Heidenhain .h).")],
@@ -110,6 +116,15 @@ def simulate(
                                   " schedule`, applied to --schedule-axis.")
     ] = None,
     schedule_axis: Annotated[str, typer.Option("--schedule-axis", help="Axis the schedule drives (x, y or z).")] = "z",
+    compare: Annotated[
+        Path | None, typer.Option("--compare", help="Axis log of the machine running PROGRAM: report how well the"
+                                  " virtual CNC predicts it (per-command error correlation and difference).")
+    ] = None,
+    log_format: Annotated[
+        str, typer.Option("--log-format", help="Format of --compare: auto, ilcnc, halsampler or tncscope.")
+    ] = "auto",
+    log_units: Annotated[str, typer.Option("--log-units", help="Unit of --compare's positions: mm or inch.")] = "mm",
+    log_columns: Annotated[str | None, typer.Option("--log-columns", help="With --compare: " + _LOG_COLUMNS_HELP)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Run PROGRAM on the virtual CNC: planned reference, drive models, contour error."""
@@ -118,6 +133,14 @@ def simulate(
     from ilcnc.profile import load_profile
     from ilcnc.program import read_program
 
+    if compare is not None:
+        bad = [o for o, v in (("--out", out), ("--against", against), ("--schedule", schedule)) if v is not None]
+        if bad:
+            typer.echo(f"error: --compare judges the virtual CNC on PROGRAM as it is: it does not go with {bad[0]}",
+                       err=True)
+            raise typer.Exit(1)
+        _compare(program, profile, compare, log_format, log_units, log_columns, as_json)
+        return
     try:
         prof = load_profile(profile)
         prog = read_program(program, default_units=prof.machine.units)
@@ -146,6 +169,61 @@ def simulate(
         typer.echo(json.dumps(result.to_json(prog)))
         return
     _print_simulation(result, prog, console, out)
+
+
+def _check_log_options(log_format: str, log_units: str) -> None:
+    """Refuse an unknown ``--log-format`` or ``--log-units`` (a usage error: exit 2, as typer's own)."""
+    if log_format not in ("auto", "ilcnc", "halsampler", "tncscope"):
+        typer.echo(f"error: --log-format must be auto, ilcnc, halsampler or tncscope, got {log_format!r}", err=True)
+        raise typer.Exit(2)
+    if log_units not in ("mm", "inch"):
+        typer.echo(f"error: --log-units must be mm or inch, got {log_units!r}", err=True)
+        raise typer.Exit(2)
+
+
+def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_units: str, log_columns: str | None,
+             as_json: bool) -> None:
+    """``simulate --compare``: the virtual CNC's E(k) against the one measured from a log (:mod:`ilcnc.fidelity`)."""
+    from ilcnc.fidelity import TARGET_CORRELATION, TARGET_DIFFERENCE, fidelity_of_log
+    from ilcnc.logs import read_log
+    from ilcnc.profile import load_profile
+    from ilcnc.program import read_program
+
+    _check_log_options(log_format, log_units)
+    try:
+        prof = load_profile(profile)
+        prog = read_program(program, default_units=prof.machine.units)
+        log = read_log(log_path, fmt=log_format, period_s=prof.machine.servo_period_s, units=log_units,
+                       columns=log_columns)
+        fid = fidelity_of_log(prog, log, prof, source=log_path, units=log_units)
+    except IlcncError as exc:
+        _fail(exc)
+    if as_json:
+        typer.echo(json.dumps({"program": str(program), "log": str(log_path), "fidelity": fid.to_json()}))
+        return
+    from rich.table import Table
+
+    def um(x: float) -> str:
+        return f"{x * 1e3:.2f}"
+
+    t = Table(title=f"virtual CNC against {log_path.name}: {prog.path.name}", show_header=False)
+    t.add_column("what")
+    t.add_column("value")
+    t.add_row("commands measured by both", str(fid.commands))
+    t.add_row("correlation of |E(k)|", f"{fid.correlation:.3f} (target ≥ {TARGET_CORRELATION:g})")
+    t.add_row("  per axis", " / ".join(f"{a} {c:.3f}" for a, c in fid.axis_correlation.items()))
+    t.add_row("RMS |E(k)| measured / predicted (µm)", f"{um(fid.rms_measured_mm)} / {um(fid.rms_predicted_mm)}")
+    t.add_row("RMS of E measured − predicted (µm)",
+              f"{um(fid.rms_difference_mm)} ({fid.relative_difference:.0%} of measured; target ≤ {TARGET_DIFFERENCE:.0%})")
+    for key in ("rms", "max"):
+        t.add_row(f"contour error {key} measured / predicted (µm)",
+                  f"{um(fid.contour_measured_mm[key])} / {um(fid.contour_predicted_mm[key])}")
+    if fid.worst:
+        w = fid.worst[0]
+        t.add_row("largest difference", f"k={w['k']} (line {w['line']})")
+    t.add_row("verdict", "the virtual CNC predicts this machine: virtual learning can be trusted" if fid.trusted else
+              "the virtual CNC does not predict this machine well enough: learn from logs (learn --log)")
+    _console().print(t)
 
 
 def _simulate(prog, prof, orig, samples: bool, progress=None):
@@ -221,6 +299,7 @@ def learn(
         typer.Option("--log-period", min=1e-6, help="Sample period of the log (s) when it has no time column"
                      " (halsampler without -t); default: the profile's servo period."),
     ] = None,
+    log_columns: Annotated[str | None, typer.Option("--log-columns", help=_LOG_COLUMNS_HELP)] = None,
     points_reach: Annotated[
         float | None,
         typer.Option("--points-reach", min=0.0, help="With --points: longest path gap (mm) between measured commands"
@@ -236,14 +315,9 @@ def learn(
     """
     from ilcnc.workflow import LearnRequest, learn_part
 
-    if log_format not in ("auto", "ilcnc", "halsampler", "tncscope"):
-        typer.echo(f"error: --log-format must be auto, ilcnc, halsampler or tncscope, got {log_format!r}", err=True)
-        raise typer.Exit(2)
-    if log_units not in ("mm", "inch"):
-        typer.echo(f"error: --log-units must be mm or inch, got {log_units!r}", err=True)
-        raise typer.Exit(2)
+    _check_log_options(log_format, log_units)
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
-                       log_period_s=log_period, points_reach_mm=points_reach)
+                       log_period_s=log_period, points_reach_mm=points_reach, log_columns=log_columns)
     console = _console()
     try:
         if as_json or log is not None or points is not None:
@@ -551,7 +625,9 @@ def linuxcnc_run(
     raw: Annotated[Path | None, typer.Option("--raw", help="Also keep the raw halsampler output here.")] = None,
     time_scale: Annotated[int, typer.Option("--time-scale", min=1, max=8, help="Run k times faster (same log).")] = 1,
     settle_s: Annotated[float, typer.Option("--settle", min=0.0, max=10.0, help="Log this long after motion ends, s.")] = 0.2,
-    timeout_s: Annotated[float, typer.Option("--timeout", min=1.0, help="Wall-clock limit of the program, s.")] = 600.0,
+    timeout_s: Annotated[float, typer.Option(
+        "--timeout", min=1.0, help="Limit of the program's run, s of machine time (at --time-scale k: this / k of wall time)."
+    )] = 600.0,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Run PROGRAM on LinuxCNC headlessly and write its axis log (commanded and actual, per servo cycle).

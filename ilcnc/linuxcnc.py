@@ -706,8 +706,8 @@ def run_program(
     settle_s : float
         Time logged after the commanded motion ends (the axes still lag), s.
     timeout_s : float
-        Wall-clock limit for the program itself (launch and shutdown get
-        another minute), s.
+        Limit of the program's run in machine time, s: at ``time_scale`` k it may take ``timeout_s / k`` of
+        wall-clock time (launch and shutdown get another minute).
     ini_overrides : mapping, optional
         INI values to change for this run, in real-time units, e.g.
         ``{"JOINT_0": {"FERROR": 1, "MIN_FERROR": 1}}`` or ``{"ILCNC": {"KV": 50}}``.
@@ -788,6 +788,7 @@ def run_program(
             ILCNC_RESULT=str(result_path),
             ILCNC_SETTLE=f"{settle_s / time_scale + 0.1:.4f}",
             ILCNC_TIMEOUT=f"{timeout_s / time_scale if time_scale > 1 else timeout_s:.3f}",
+            ILCNC_TIMEOUT_LABEL=f"{timeout_s:g} s of machine time (--timeout; give a longer one for this program)",
         )
 
         with _run_lock(timeout_s + _STARTUP_MARGIN_S, program):

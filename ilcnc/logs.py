@@ -1173,6 +1173,9 @@ def read_log(
     p = Path(path)
     kind = detect_log_format(p) if fmt == "auto" else fmt
     if kind == "tncscope":
+        if isinstance(columns, str):
+            raise InputError(p, None, "a TNCscope export names its signals in its header: the column names in file"
+                                      " order apply only to halsampler logs")
         return read_tncscope(p, columns=columns, length_unit=None if units == "mm" else units)  # type: ignore[arg-type]
     if kind == "halsampler":
         log = read_halsampler(p, columns=HALSAMPLER_COLUMNS if columns is None else columns, period_s=period_s)

@@ -9,34 +9,17 @@ file lacks the program end LinuxCNC insists on, so the test runs a copy with
 
 from __future__ import annotations
 
-import json
 import re
-import shutil
 from itertools import pairwise
-from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
 from ilcnc.cli import app
 from ilcnc.state import LearnState
+from tests.integration._lcnc import PROFILE, REPO, cli_json, needs_linuxcnc, runner
 
-REPO = Path(__file__).resolve().parents[2]
-PROFILE = REPO / "configs" / "linuxcnc-sim.yaml"
-HAVE_LINUXCNC = shutil.which("linuxcnc") is not None
-pytestmark = [
-    pytest.mark.linuxcnc,
-    pytest.mark.skipif(not HAVE_LINUXCNC, reason="LinuxCNC is not installed ('linuxcnc' not on PATH; Debian 12: "
-                       "apt-get install linuxcnc-uspace): cannot run programs on LinuxCNC's motion controller"),
-]
-runner = CliRunner()
+pytestmark = needs_linuxcnc()
 _COORD = re.compile(r"\s?[XYZ][-+]?[0-9]*\.?[0-9]*")
-
-
-def _cli(*args: object) -> dict:
-    res = runner.invoke(app, [str(a) for a in args] + ["--json"])
-    assert res.exit_code == 0, res.output
-    return json.loads(res.output)
 
 
 @pytest.fixture(scope="module")
@@ -47,17 +30,17 @@ def loop(tmp_path_factory) -> dict:
     state = d / "state"
     logs, outs, learned = [], [part], []
     log = d / "run0.csv"
-    _cli("linuxcnc", "run", part, "--log", log, "--time-scale", 8)
+    cli_json("linuxcnc", "run", part, "--log", log, "--time-scale", 8)
     logs.append(log)
     for i in range(1, 5):
         out = d / f"jsdc.ilc{i}.ngc"
-        learned.append(_cli("learn", part, "--profile", PROFILE, "--log", log, "--state", state, "--out", out))
+        learned.append(cli_json("learn", part, "--profile", PROFILE, "--log", log, "--state", state, "--out", out))
         log = d / f"run{i}.csv"
         # LinuxCNC must accept every compensated program (a refusal raises and fails the test)
-        _cli("linuxcnc", "run", out, "--log", log, "--time-scale", 8)
+        cli_json("linuxcnc", "run", out, "--log", log, "--time-scale", 8)
         outs.append(out)
         logs.append(log)
-    last = _cli("learn", part, "--profile", PROFILE, "--log", log, "--state", state, "--out", d / "jsdc.ilc5.ngc")
+    last = cli_json("learn", part, "--profile", PROFILE, "--log", log, "--state", state, "--out", d / "jsdc.ilc5.ngc")
     return {"dir": d, "part": part, "state": state, "logs": logs, "outs": outs, "learned": learned, "last": last}
 
 
@@ -70,6 +53,17 @@ def test_four_iterations_on_linuxcnc_reduce_the_contour_error(loop) -> None:
     st = LearnState.load(loop["state"])
     assert [e.iteration for e in st.iterations] == [0, 1, 2, 3, 4, 5]
     assert all(e.measured_from["kind"] == "log" for e in st.iterations[:5])
+
+
+def test_fidelity_of_the_virtual_cnc_on_the_blended_cam_program(loop) -> None:
+    # `simulate --compare` on LinuxCNC's run of the original. jsdc runs in plain G64 (blended): measured
+    # 2026-11-23 correlation 0.87 (x 0.92, y 0.90, z 0.93), difference 42 % of the error, sample RMS 41.6 µm
+    # measured / 38.5 µm predicted. Issue 9's targets (0.9, 20 %) are met in G61 (test_linuxcnc_fidelity.py),
+    # not here: LinuxCNC's corner blends are not ilcnc's planner's (docs/papers.md, "Real controller").
+    f = cli_json("simulate", loop["part"], "--profile", PROFILE, "--compare", loop["logs"][0])["fidelity"]
+    assert f["commands"] == 2381
+    assert f["correlation"] > 0.8
+    assert f["contour_predicted_mm"]["rms"] == pytest.approx(f["contour_measured_mm"]["rms"], rel=0.15)
 
 
 def test_compensated_programs_differ_only_in_g01_coordinates(loop) -> None:

@@ -13,32 +13,14 @@ Measured (LinuxCNC 2.9, Debian 12; the runs are deterministic): RMS 22.30 → 13
 
 from __future__ import annotations
 
-import json
-import shutil
 from itertools import pairwise
-from pathlib import Path
 
 import pytest
 import yaml
-from typer.testing import CliRunner
 
-from ilcnc.cli import app
+from tests.integration._lcnc import PROFILE, cli_json, needs_linuxcnc
 
-REPO = Path(__file__).resolve().parents[2]
-PROFILE = REPO / "configs" / "linuxcnc-sim.yaml"
-HAVE_LINUXCNC = shutil.which("linuxcnc") is not None
-pytestmark = [
-    pytest.mark.linuxcnc,
-    pytest.mark.skipif(not HAVE_LINUXCNC, reason="LinuxCNC is not installed ('linuxcnc' not on PATH; Debian 12: "
-                       "apt-get install linuxcnc-uspace): cannot run programs on LinuxCNC's motion controller"),
-]
-runner = CliRunner()
-
-
-def _cli(*args: object) -> dict:
-    res = runner.invoke(app, [str(a) for a in args] + ["--json"])
-    assert res.exit_code == 0, res.output
-    return json.loads(res.output)
+pytestmark = needs_linuxcnc()
 
 
 def square_program(side_mm: float = 50.0, step_mm: float = 1.0, feed_mm_min: float = 3000.0) -> str:
@@ -63,18 +45,18 @@ def loop(tmp_path_factory) -> dict:
     profile.write_text(yaml.safe_dump(prof))
     state = d / "state"
     log = d / "run0.csv"
-    _cli("linuxcnc", "run", part, "--log", log, "--time-scale", 8)
+    cli_json("linuxcnc", "run", part, "--log", log, "--time-scale", 8)
     for i in range(1, 5):
         out = d / f"square.ilc{i}.ngc"
-        _cli("learn", part, "--profile", profile, "--log", log, "--state", state, "--out", out)
+        cli_json("learn", part, "--profile", profile, "--log", log, "--state", state, "--out", out)
         log = d / f"run{i}.csv"
-        _cli("linuxcnc", "run", out, "--log", log, "--time-scale", 8)
-    last = _cli("learn", part, "--profile", profile, "--log", log, "--state", state, "--out", d / "square.ilc5.ngc")
+        cli_json("linuxcnc", "run", out, "--log", log, "--time-scale", 8)
+    last = cli_json("learn", part, "--profile", profile, "--log", log, "--state", state, "--out", d / "square.ilc5.ngc")
     return {"part": part, "last": last}
 
 
 def test_the_program_is_a_50_mm_square_of_200_g01_moves(loop) -> None:
-    insp = _cli("inspect", loop["part"], "--profile", PROFILE)
+    insp = cli_json("inspect", loop["part"], "--profile", PROFILE)
     assert insp["g01_commands"] == 200
     assert insp["extents_mm"]["min"][:2] == [0.0, 0.0] and insp["extents_mm"]["max"][:2] == [50.0, 50.0]
 

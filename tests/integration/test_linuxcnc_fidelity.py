@@ -1,0 +1,43 @@
+"""Fidelity against a real controller: the virtual CNC's prediction against LinuxCNC's motion.
+
+``ilcnc simulate PROG --profile configs/linuxcnc-sim.yaml --compare LOG`` on a log LinuxCNC recorded of the
+same program. PyCAM's ``tiny_cat_outline.ngc`` (CAMotics example, 2,808 G01 commands, ``G61`` exact path)
+runs in ~40 s at ×8. In exact-path mode LinuxCNC's planner and ilcnc's agree (a square in ``G61`` is 0.1 µm
+from it, ilcnc/plan.py), and the drive model was identified on the same simulation: the prediction must meet
+issue 9's targets (correlation ≥ 0.9, difference ≤ 20 % of the error). Measured 2026-11-23: correlation
+1.000, difference 3 %, sample contour RMS 3.23 µm measured against 3.29 µm predicted.
+
+Programs in blended ``G64`` mode do not meet them yet (jsdc: correlation 0.87, difference 42 %; checked in
+test_linuxcnc_learning.py): LinuxCNC's corner blends are not ilcnc's (docs/papers.md, "Real controller").
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.conftest import SAMPLES
+from tests.integration._lcnc import PROFILE, cli_json, needs_linuxcnc
+
+pytestmark = needs_linuxcnc()
+
+
+@pytest.fixture(scope="module")
+def tiny_cat(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    d = tmp_path_factory.mktemp("lcnc-fidelity")
+    part = d / "tiny_cat_outline.ngc"
+    part.write_bytes((SAMPLES / "gcode" / "tiny_cat_outline.ngc").read_bytes())
+    log = d / "run.csv"
+    cli_json("linuxcnc", "run", part, "--log", log, "--time-scale", 8)
+    return cli_json("simulate", part, "--profile", PROFILE, "--compare", log)["fidelity"]
+
+
+def test_the_virtual_cnc_predicts_linuxcnc_in_exact_path_mode(tiny_cat: dict) -> None:
+    f = tiny_cat
+    assert f["commands"] >= 2700
+    assert f["correlation"] >= 0.9
+    assert all(c >= 0.9 for c in f["axis_correlation"].values())
+    assert f["relative_difference"] <= 0.2
+    assert f["trusted"] is True
+    # the sample contour error, not only E(k): within 10 % in RMS and in max
+    for key in ("rms", "max"):
+        assert f["contour_predicted_mm"][key] == pytest.approx(f["contour_measured_mm"][key], rel=0.1)
