@@ -7,6 +7,7 @@ Exit codes: 0 success, 1 bad input (one line naming file, line and problem),
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Annotated, NoReturn
@@ -58,6 +59,27 @@ def _console():
 _LOG_COLUMNS_HELP = ("what each column of a halsampler log holds, in file order: names from n line x_ref y_ref z_ref"
                      " x_act y_act z_act, '-' for a column to skip (default: the ilcnc simulation's"
                      " 'n line x_ref y_ref z_ref x_act y_act z_act'; docs/linuxcnc.md).")
+
+
+#: Help of ``--log-offset`` (learn, simulate --compare).
+_LOG_OFFSET_HELP = ("work offset 'X,Y,Z' subtracted from the log's commanded and actual positions, in --log-units:"
+                    " a log of machine coordinates brought into the program's (active G5x + G92 + tool length offset;"
+                    " docs/linuxcnc.md 5.3).")
+
+
+def _parse_offset(text: str | None) -> tuple[float, float, float] | None:
+    """``--log-offset 'X,Y,Z'`` as three floats (a usage error, exit 2, names the option)."""
+    if text is None:
+        return None
+    parts = [t for t in text.replace(",", " ").split() if t]
+    try:
+        vals = tuple(float(t) for t in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+        typer.echo(f"error: --log-offset must be three numbers X,Y,Z (e.g. 100,50,-20), got {text!r}", err=True)
+        raise typer.Exit(2)
+    return vals  # type: ignore[return-value]
 
 
 @app.command()
@@ -125,6 +147,7 @@ def simulate(
     ] = "auto",
     log_units: Annotated[str, typer.Option("--log-units", help="Unit of --compare's positions: mm or inch.")] = "mm",
     log_columns: Annotated[str | None, typer.Option("--log-columns", help="With --compare: " + _LOG_COLUMNS_HELP)] = None,
+    log_offset: Annotated[str | None, typer.Option("--log-offset", help="With --compare: " + _LOG_OFFSET_HELP)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Run PROGRAM on the virtual CNC: planned reference, drive models, contour error."""
@@ -139,7 +162,7 @@ def simulate(
             typer.echo(f"error: --compare judges the virtual CNC on PROGRAM as it is: it does not go with {bad[0]}",
                        err=True)
             raise typer.Exit(1)
-        _compare(program, profile, compare, log_format, log_units, log_columns, as_json)
+        _compare(program, profile, compare, log_format, log_units, log_columns, _parse_offset(log_offset), as_json)
         return
     try:
         prof = load_profile(profile)
@@ -182,7 +205,7 @@ def _check_log_options(log_format: str, log_units: str) -> None:
 
 
 def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_units: str, log_columns: str | None,
-             as_json: bool) -> None:
+             log_offset: tuple[float, float, float] | None, as_json: bool) -> None:
     """``simulate --compare``: the virtual CNC's E(k) against the one measured from a log (:mod:`ilcnc.fidelity`)."""
     from ilcnc.fidelity import TARGET_CORRELATION, TARGET_DIFFERENCE, fidelity_of_log
     from ilcnc.logs import read_log
@@ -194,7 +217,7 @@ def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_
         prof = load_profile(profile)
         prog = read_program(program, default_units=prof.machine.units)
         log = read_log(log_path, fmt=log_format, period_s=prof.machine.servo_period_s, units=log_units,
-                       columns=log_columns)
+                       columns=log_columns, offset=log_offset)
         fid = fidelity_of_log(prog, log, prof, source=log_path, units=log_units)
     except IlcncError as exc:
         _fail(exc)
@@ -300,6 +323,7 @@ def learn(
                      " (halsampler without -t); default: the profile's servo period."),
     ] = None,
     log_columns: Annotated[str | None, typer.Option("--log-columns", help=_LOG_COLUMNS_HELP)] = None,
+    log_offset: Annotated[str | None, typer.Option("--log-offset", help=_LOG_OFFSET_HELP)] = None,
     points_reach: Annotated[
         float | None,
         typer.Option("--points-reach", min=0.0, help="With --points: longest path gap (mm) between measured commands"
@@ -317,7 +341,8 @@ def learn(
 
     _check_log_options(log_format, log_units)
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
-                       log_period_s=log_period, points_reach_mm=points_reach, log_columns=log_columns)
+                       log_period_s=log_period, points_reach_mm=points_reach, log_columns=log_columns,
+                       log_offset=_parse_offset(log_offset))
     console = _console()
     try:
         if as_json or log is not None or points is not None:

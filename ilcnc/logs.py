@@ -1132,6 +1132,7 @@ def read_log(
     period_s: float = 1e-3,
     columns: object = None,
     units: str = "mm",
+    offset: tuple[float, float, float] | None = None,
 ) -> AxisLog:
     """Read an axis log of any supported format.
 
@@ -1153,6 +1154,10 @@ def read_log(
         Unit the positions were recorded in; ``"inch"`` multiplies reference
         and actual positions by 25.4. For a TNCscope export it is the unit of
         position columns whose header names none (header units always apply).
+    offset : (x, y, z), optional
+        Work offset to subtract from the commanded and actual positions, in
+        ``units``: a log of machine coordinates (LinuxCNC's joint pins) brought
+        into the program's coordinates (active G5x + G92 + tool length offset).
 
     Returns
     -------
@@ -1171,6 +1176,18 @@ def read_log(
     if units not in _LOG_UNITS:
         raise ValueError(f"unknown log units {units!r} (known: {', '.join(_LOG_UNITS)})")
     p = Path(path)
+    log = _read_any_log(p, fmt, period_s, columns, units)
+    if offset is not None:
+        off = np.asarray(offset, dtype=np.float64) * (25.4 if units == "inch" else 1.0)
+        if off.shape != (3,) or not np.all(np.isfinite(off)):
+            raise InputError(p, None, f"the work offset must be three finite numbers x, y, z, got {offset!r}")
+        log.ref_mm = log.ref_mm - off
+        log.act_mm = log.act_mm - off
+    return log
+
+
+def _read_any_log(p: Path, fmt: str, period_s: float, columns: object, units: str) -> AxisLog:
+    """:func:`read_log` without the work offset."""
     kind = detect_log_format(p) if fmt == "auto" else fmt
     if kind == "tncscope":
         if isinstance(columns, str):

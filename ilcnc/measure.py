@@ -180,7 +180,8 @@ def measure_log(
         i = int(np.flatnonzero(off)[0])
         raise LogError(src, None, f"{off.sum() / feed.sum():.0%} of the log's feed samples are more than {gate:g} mm off"
                        f" the path of {original.path.name} (first at t = {log.t_s[i]:.3f} s): it is not a run of this"
-                       " program, or not in the same coordinates")
+                       " program, or not in the same coordinates (a log of machine coordinates needs the work offset:"
+                       " --log-offset)")
     ref = plan_program(ran, profile)
     span = float(log.t_s[-1] - log.t_s[0])
     lo, hi = DURATION_RATIO

@@ -127,6 +127,7 @@ class LearnRequest:
     log_period_s: float | None = None
     points_reach_mm: float | None = None
     log_columns: str | None = None
+    log_offset: tuple[float, float, float] | None = None
 
 
 @dataclass(slots=True)
@@ -421,7 +422,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     kind = state.error
     if req.log is not None:
         period = req.log_period_s if req.log_period_s is not None else profile.machine.servo_period_s
-        log = read_log(req.log, fmt=req.log_format, period_s=period, units=req.log_units, columns=req.log_columns)
+        log = read_log(req.log, fmt=req.log_format, period_s=period, units=req.log_units, columns=req.log_columns,
+                       offset=req.log_offset)
         meas = measure_log(log, ran, original, profile, kind, source=req.log, units=req.log_units)
     else:
         assert req.points is not None

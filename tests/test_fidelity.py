@@ -160,3 +160,31 @@ def test_log_columns_name_what_is_wrong(logs: dict[str, Path], tmp_path: Path) -
     res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(logs["same"]),
                               "--log-columns", " ".join(ORDER)])
     assert res.exit_code == 1 and "a column map applies only to halsampler and TNCscope logs" in res.output
+
+
+def test_log_offset_brings_machine_coordinates_into_the_programs(logs: dict[str, Path], tmp_path: Path) -> None:
+    # the same run logged in machine coordinates, with the part's work offset at (100, 50, -20) mm
+    a = np.genfromtxt(logs["same"], delimiter=",", names=True)
+    shifted = tmp_path / "machine.csv"
+    lines = [",".join(a.dtype.names)]
+    off = {"x": 100.0, "y": 50.0, "z": -20.0}
+    for row in a:
+        lines.append(",".join(f"{row[n] + off.get(n[0], 0.0) if n[1:] in ('_ref', '_act') else row[n]:.6f}"
+                              if n not in ("k", "line") else str(int(row[n])) for n in a.dtype.names))
+    shifted.write_text("\n".join(lines) + "\n", encoding="ascii")
+    res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(shifted)])
+    assert res.exit_code == 1 and "off the path" in res.output
+    f = _cli("simulate", JSDC, "--profile", PROFILE, "--compare", shifted, "--log-offset", "100,50,-20")["fidelity"]
+    assert f["commands"] == 2381 and f["correlation"] > 0.999999 and f["rms_difference_mm"] < 1e-6
+    step = _cli("learn", JSDC, "--profile", PROFILE, "--log", shifted, "--log-offset", "100, 50, -20",
+                "--state", tmp_path / "state", "--out", tmp_path / "jsdc.ilc1.gcode")
+    assert step["status"] == "stepped"
+    assert step["iterations"][0]["contour_error_mm"]["rms"] == pytest.approx(f["contour_measured_mm"]["rms"], rel=1e-6)
+
+
+@pytest.mark.parametrize("bad", ["100,50", "a,b,c", "1,2,nan"])
+def test_a_malformed_log_offset_is_a_usage_error(logs: dict[str, Path], bad: str) -> None:
+    res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(logs["same"]),
+                              "--log-offset", bad])
+    assert res.exit_code == 2
+    assert res.output.strip() == f"error: --log-offset must be three numbers X,Y,Z (e.g. 100,50,-20), got {bad!r}"
