@@ -613,6 +613,21 @@ def _filter_reference(model: DiscreteModel, ref: np.ndarray, out: np.ndarray) ->
         raise ValueError("the reference contains NaN or infinite values")
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _deflated_step(step, bn, an, z):  # pragma: no cover - compiled
+    """One sample of the transposed direct form II filter ``C/A`` on ``step`` (the deviation's difference),
+    in ``scipy.signal.lfilter``'s order (``y = z0 + b0·x``; ``z[i] = z[i+1] + x·b[i+1] − y·a[i+1]``): the
+    recursion :func:`_deflated_kernel` and :func:`_deflated_stream_kernel` share. 0 for a pure gain."""
+    nf = an.shape[0]
+    if nf <= 1:
+        return 0.0
+    lf = z[0] + bn[0] * step
+    for i in range(nf - 2):
+        z[i] = z[i + 1] + step * bn[i + 1] - lf * an[i + 1]
+    z[nf - 2] = step * bn[nf - 1] - lf * an[nf - 1]
+    return lf
+
+
 @njit(cache=True, nogil=True)
 def _deflated_kernel(r, out, bn, an, g, delay):  # pragma: no cover - compiled; checked against filter_deviation
     """``out[k + d] = r0 + g·dev[k] + C/A·Δdev[k]``, ``out[:d] = r0``, ``dev = r − r0``; False if ``r`` is not finite.
@@ -639,11 +654,7 @@ def _deflated_kernel(r, out, bn, an, g, delay):  # pragma: no cover - compiled; 
         prev = dev
         y = g * dev
         if nf > 1:
-            lf = z[0] + bn[0] * step
-            for i in range(nf - 2):
-                z[i] = z[i + 1] + step * bn[i + 1] - lf * an[i + 1]
-            z[nf - 2] = step * bn[nf - 1] - lf * an[nf - 1]
-            y = y + lf
+            y = y + _deflated_step(step, bn, an, z)
         if k + delay < n:
             out[k + delay] = r0 + y
     return finite
@@ -668,11 +679,7 @@ def _deflated_stream_kernel(r, y, bn, an, g, r0, z, st):  # pragma: no cover - c
         prev = dev
         yy = g * dev
         if nf > 1:
-            lf = z[0] + bn[0] * step
-            for i in range(nf - 2):
-                z[i] = z[i + 1] + step * bn[i + 1] - lf * an[i + 1]
-            z[nf - 2] = step * bn[nf - 1] - lf * an[nf - 1]
-            yy = yy + lf
+            yy = yy + _deflated_step(step, bn, an, z)
         y[k] = r0 + yy
     st[0] = prev
     st[1] = seen + n

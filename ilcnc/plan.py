@@ -103,8 +103,9 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-from collections.abc import Generator, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -387,16 +388,10 @@ def plan_chunks(program: object, profile: MachineProfile, *, chunk_samples: int 
     state from one range to the next (:func:`_group_range`). Without numba the numpy path plans each
     group whole.
     """
-    moves = _profile_moves(program, profile)
-    limits = PlanLimits.from_profile(profile)
-    period_s = profile.machine.servo_period_s
-    mode = mode or profile.planner.profile
-    if mode not in ("seven_phase", "cubic", "constant_feed"):
-        raise ValueError(f"unknown planner profile {mode!r}")
     chunk = max(int(chunk_samples), _BLOCK)
     chunk -= chunk % _BLOCK
-    pieces = _plan_pieces(moves, limits, period_s, mode, profile.planner.corner_tolerance_mm,
-                          profile.planner.jerk_time_constant_s, profile.planner.in_position_s, 12, chunk)
+    moves, pieces = _profile_pieces(program, profile, chunk, mode)
+    period_s = profile.machine.servo_period_s
     buf_pos = np.empty((chunk, 3))
     buf_mv = np.empty(chunk, dtype=np.int32)
     fill = 0
@@ -417,13 +412,27 @@ def plan_chunks(program: object, profile: MachineProfile, *, chunk_samples: int 
         yield _chunk(moves, first, period_s, buf_pos, buf_mv, fill)
 
 
+def _profile_pieces(program: object, profile: MachineProfile, chunk: int, mode: str | None
+                    ) -> tuple[MoveTable, Iterator[tuple[NDArray[np.float64], NDArray[np.int32]]]]:
+    """The moves :func:`plan_chunks` plans and the pieces (positions, moves) of their reference, in order."""
+    moves = _profile_moves(program, profile)
+    mode = mode or profile.planner.profile
+    if mode not in ("seven_phase", "cubic", "constant_feed"):
+        raise ValueError(f"unknown planner profile {mode!r}")
+    pieces = _plan_pieces(moves, PlanLimits.from_profile(profile), profile.machine.servo_period_s, mode,
+                          profile.planner.corner_tolerance_mm, profile.planner.jerk_time_constant_s,
+                          profile.planner.in_position_s, 12, chunk)
+    return moves, pieces
+
+
 def planned_duration_s(program: object, profile: MachineProfile) -> float:
-    """Planned cycle time of a program, s: :func:`plan_program`'s ``duration_s`` without holding its samples."""
-    n = 0
-    period = profile.machine.servo_period_s
-    for ch in plan_chunks(program, profile):
-        n += ch.n_samples
-    return max(n - 1, 0) * period
+    """Planned cycle time of a program, s: :func:`plan_program`'s ``duration_s`` without holding its samples.
+
+    It counts the samples of :func:`plan_chunks`' pieces as they are planned (no chunk is assembled).
+    """
+    _moves, pieces = _profile_pieces(program, profile, DEFAULT_CHUNK_SAMPLES - DEFAULT_CHUNK_SAMPLES % _BLOCK, None)
+    n = sum(pos.shape[0] for pos, _mv in pieces)
+    return max(n - 1, 0) * profile.machine.servo_period_s
 
 
 def _chunk(moves: MoveTable, first: int, period_s: float, pos: NDArray[np.float64], mv: NDArray[np.int32],
@@ -486,12 +495,46 @@ def _plan_pieces(moves: MoveTable, limits: PlanLimits, period_s: float, mode: st
             yield np.repeat(last_row[None, :], hold, axis=0), np.full(hold, last_move, dtype=np.int32)
 
 
-def _group_in_ranges(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: NDArray[np.float64],
-                     limits: PlanLimits, period_s: float, mode: str, max_passes: int, chunk: int
-                     ) -> Generator[tuple[NDArray[np.float64], NDArray[np.int32]], None, tuple[NDArray[np.float64], int]]:
-    """A group longer than a chunk: :func:`_plan_group_kernel`'s passes without writing, then the final
-    pass again range by range (``chunk`` rows, a multiple of ``_BLOCK``). Returns the group's last row
-    and move (the stand-still after it)."""
+@dataclass(slots=True)
+class _GroupPass:
+    """A group's last re-planning pass (:func:`_replan_group`): the kernel's inputs and what the pass found."""
+
+    gs: NDArray[np.float64]
+    ge: NDArray[np.float64]
+    arcs: tuple[NDArray[Any], ...]
+    start: NDArray[np.float64]
+    lens: NDArray[np.int64]
+    extra: int
+    pieces: _Pieces
+    n: int
+    t_end: NDArray[np.float64]
+    total: float
+    counts: NDArray[np.int64]
+    scale: NDArray[np.float64]
+    thr_a: NDArray[np.float64]
+    thr_j: NDArray[np.float64]
+
+    def move_runs(self, idx: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Run lengths of the move column: the start sample and the filter delay are on the first move, the
+        filters' tail on the move of the last ideal sample; the start sample itself is not returned."""
+        counts = self.counts.copy()
+        delay = self.extra // 2
+        last = int(np.flatnonzero(counts)[-1])
+        counts[0] += delay
+        counts[last] += self.extra - delay
+        return idx[: last + 1].astype(np.int64), counts[: last + 1]
+
+
+def _replan_group(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: NDArray[np.float64], limits: PlanLimits,
+                  period_s: float, mode: str, max_passes: int,
+                  rows_for: Callable[[int], NDArray[np.float64]]) -> _GroupPass:
+    """Run a group through the compiled kernel (:func:`_group_kernel`) until no axis limit is violated.
+
+    Each pass writes its ``n_out`` rows into ``rows_for(n_out)`` (an empty array: check only, write nothing)
+    and, where a limit is exceeded, lowers the speed of every move inside the filter window of a violating
+    sample (sample s of the ideal signal is on group move searchsorted(cum, s - 1, "right"); sample 0 is the
+    start) by 20 % for the next pass.
+    """
     idx, v, vj, lengths = g.idx, g.v, g.vj, g.lengths
     gs = np.ascontiguousarray(moves.start_mm[idx])
     ge = np.ascontiguousarray(moves.end_mm[idx])
@@ -504,14 +547,13 @@ def _group_in_ranges(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: N
     extra = int(lens.sum() - lens.shape[0])
     scale = np.ones(idx.shape[0])
     pieces = g.first
-    no_rows = np.empty((0, 3))
     p2, p3 = float(period_s**2), float(period_s**3)
     for _ in range(max_passes):
         _plen, pspd, owner, offs, dur, mlen = pieces
         n, t_end, total = _ideal_samples(dur, period_s)
         counts = np.zeros(idx.shape[0], dtype=np.int64)
         bad = _group_kernel(t_end, dur, pspd, owner, offs, mlen, n, float(period_s), total, gs, ge, *arcs, start, lens,
-                            no_rows, counts, check, thr_a, thr_j, p2, p3)
+                            rows_for(n + extra), counts, check, thr_a, thr_j, p2, p3)
         if not check or bad.size == 0:
             break
         cum = np.cumsum(counts)
@@ -519,21 +561,30 @@ def _group_in_ranges(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: N
         lo_g, hi_g = (np.where(x > 0, np.searchsorted(cum, x - 1, side="right"), 0) for x in (lo_s, hi_s))
         scale[_slower_moves(lo_g, hi_g, idx.shape[0])] *= 0.8
         pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold)
-    delay = extra // 2
-    last = int(np.flatnonzero(counts)[-1])
-    counts[0] += delay
-    counts[last] += extra - delay
-    run_move, run_count = idx[: last + 1].astype(np.int64), counts[: last + 1]
+    return _GroupPass(gs, ge, arcs, start, lens, extra, pieces, n, t_end, total, counts, scale, thr_a, thr_j)
+
+
+def _group_in_ranges(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: NDArray[np.float64],
+                     limits: PlanLimits, period_s: float, mode: str, max_passes: int, chunk: int
+                     ) -> Generator[tuple[NDArray[np.float64], NDArray[np.int32]], None, tuple[NDArray[np.float64], int]]:
+    """A group longer than a chunk: :func:`_plan_group_kernel`'s passes without writing, then the final
+    pass again range by range (``chunk`` rows, a multiple of ``_BLOCK``). Returns the group's last row
+    and move (the stand-still after it)."""
+    no_rows = np.empty((0, 3))
+    gp = _replan_group(moves, geo, g, length, limits, period_s, mode, max_passes, lambda _n: no_rows)
+    _plen, pspd, owner, offs, dur, mlen = gp.pieces
+    run_move, run_count = gp.move_runs(g.idx)
     cum_end = np.cumsum(run_count)
-    n_out = n + extra
-    st = _group_state(start, lens)
-    scratch = np.zeros(idx.shape[0], dtype=np.int64)
+    n_out = gp.n + gp.extra
+    st = _group_state(gp.start, gp.lens)
+    scratch = np.zeros(g.idx.shape[0], dtype=np.int64)
     rows = np.empty((chunk, 3))
     bad = np.empty(16, dtype=np.int64)
+    p2, p3 = float(period_s**2), float(period_s**3)
     for k0 in range(0, n_out, chunk):
         k1 = min(k0 + chunk, n_out)
-        _group_range(k0, k1, st, t_end, dur, pspd, owner, offs, mlen, n, float(period_s), total, gs, ge, *arcs, start,
-                     lens, rows, True, scratch, False, thr_a, thr_j, p2, p3, bad, 0)
+        _group_range(k0, k1, st, gp.t_end, dur, pspd, owner, offs, mlen, gp.n, float(period_s), gp.total, gp.gs, gp.ge,
+                     *gp.arcs, gp.start, gp.lens, rows, True, scratch, False, gp.thr_a, gp.thr_j, p2, p3, bad, 0)
         # the move of output samples k0..k1-1: runs cut at the range
         r0 = int(np.searchsorted(cum_end, k0, side="right"))
         r1 = int(np.searchsorted(cum_end, k1 - 1, side="right"))
@@ -959,44 +1010,17 @@ def _plan_group_kernel(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length:
 
     Same arithmetic in the same order, so the same numbers; the kernel streams each sample through the
     interpolator, the filters, the running sum and the limit check instead of a dozen whole-array passes.
+    Each pass writes straight into ``buf`` from row ``at`` (grown when a slower pass needs more rows).
     """
-    idx, v, vj, lengths = g.idx, g.v, g.vj, g.lengths
-    gs = np.ascontiguousarray(moves.start_mm[idx])
-    ge = np.ascontiguousarray(moves.end_mm[idx])
-    garc, ga1, ga2, gc1, gc2, gr, gt0, gssw = _arc_table(moves, idx, geo.sweep)
-    start = np.ascontiguousarray(moves.start_mm[idx[0]], dtype=np.float64)
-    lens = np.array(lengths, dtype=np.int64)
-    check = mode != "constant_feed"
-    thr_a = np.asarray(limits.acceleration_mm_s2 * (1 + _FD_NOISE), dtype=np.float64)
-    thr_j = np.asarray(limits.jerk_mm_s3 * (1 + _FD_NOISE), dtype=np.float64)
-    extra = int(lens.sum() - lens.shape[0])
-    scale = np.ones(idx.shape[0])
-    pieces = g.first
-    for _ in range(max_passes):
-        _plen, pspd, owner, offs, dur, mlen = pieces
-        n, t_end, total = _ideal_samples(dur, period_s)
-        n_out = n + extra
-        buf = _reserve(buf, at + n_out)
-        counts = np.zeros(idx.shape[0], dtype=np.int64)
-        bad = _group_kernel(t_end, dur, pspd, owner, offs, mlen, n, float(period_s), total, gs, ge, garc, ga1, ga2, gc1,
-                            gc2, gr, gt0, gssw, start, lens, buf[at:at + n_out], counts, check, thr_a, thr_j,
-                            float(period_s**2), float(period_s**3))
-        if not check or bad.size == 0:
-            break
-        # lower the speed of every move inside the filter window of a violating sample
-        # (sample s of the ideal signal is on group move searchsorted(cum, s - 1, "right"); sample 0 is the start)
-        cum = np.cumsum(counts)
-        lo_s, hi_s = _violation_window(bad, extra + 3, n + 1)
-        lo_g, hi_g = (np.where(x > 0, np.searchsorted(cum, x - 1, side="right"), 0) for x in (lo_s, hi_s))
-        scale[_slower_moves(lo_g, hi_g, idx.shape[0])] *= 0.8
-        pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold)
-    # run lengths of the move column: the start sample and the filter delay are on the first move, the
-    # filters' tail on the move of the last ideal sample; the start sample itself is not returned
-    delay = extra // 2
-    last = int(np.flatnonzero(counts)[-1])
-    counts[0] += delay
-    counts[last] += extra - delay
-    return buf, n_out, idx[: last + 1].astype(np.int64), counts[: last + 1], v * scale
+    held = [buf]
+
+    def rows_for(n_out: int) -> NDArray[np.float64]:
+        held[0] = _reserve(held[0], at + n_out)
+        return held[0][at:at + n_out]
+
+    gp = _replan_group(moves, geo, g, length, limits, period_s, mode, max_passes, rows_for)
+    run_move, run_count = gp.move_runs(g.idx)
+    return held[0], gp.n + gp.extra, run_move, run_count, g.v * gp.scale
 
 
 def _arc_table(moves: MoveTable, idx: NDArray[np.int64], sweep_all: NDArray[np.float64]):
