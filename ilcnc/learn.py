@@ -535,6 +535,93 @@ class Learner:
         return u_next, clips
 
 
+@dataclass(slots=True)
+class ModelSteps:
+    """What the virtual-CNC steps after a measured step did (:func:`model_assisted_correction`).
+
+    Attributes
+    ----------
+    made : int
+        Model steps kept (0: the measured step alone was kept).
+    predicted_rms_mm : list of float
+        RMS ``|E(k)|``: measured, then as the model predicts it after the measured step and after each kept
+        model step, mm.
+    reason : str
+        Why the steps ended (``"steps"``: all made; ``"no gain"``: the next one would not lower the predicted
+        error; ``"law"``: the law keeps a history and takes no model step).
+    """
+
+    made: int
+    predicted_rms_mm: list[float]
+    reason: str
+
+
+def virtual_signal(original: Program, u_mm: NDArray[np.float64], profile: MachineProfile, kind: str) -> CommandSignal:
+    """``E(k)`` the virtual CNC of ``profile`` predicts for ``original`` run with corrections ``u_mm`` (K, 3)."""
+    from ilcnc.machine_errors import ErrorSources
+    from ilcnc.simulate import simulate_program
+    from ilcnc.stream import simulate_streamed, stream_unsupported
+
+    prog = original
+    if np.any(u_mm):
+        _text, prog = program_with_corrections(original, u_mm, profile)
+    against = None if prog is original else original
+    gate = measurement_gate_mm(profile)
+    sources = ErrorSources.from_profile(profile)
+    if stream_unsupported(profile, kind, sources=sources) is None:
+        return simulate_streamed(prog, profile, against=against, gate_mm=gate).signal
+    sim = simulate_program(prog, profile, against=against, sources=sources)
+    return signal_of_simulation(sim, original, kind, gate)
+
+
+def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], measured: CommandSignal,
+                              u_step: NDArray[np.float64], clips_step: list[Clip], steps: int, *, scale: float = 1.0
+                              ) -> tuple[NDArray[np.float64], list[Clip], ModelSteps]:
+    """Refine a measured learning step with up to ``steps`` steps on the virtual CNC.
+
+    The machine ran corrections ``u_meas`` and measured ``measured``; the law proposed ``u_step`` (with
+    ``clips_step``) from it. For a correction ``u`` the virtual CNC predicts the error
+    ``E_meas + S(u) − S(u_meas)``, where ``S`` is its own ``E(k)``: the measurement carries what the model
+    gets wrong, the model only the *change* a new correction makes (model-assisted iterative learning). Each
+    step applies the law to that prediction as a measured step would (same Q filter, bound, frozen
+    commands). A step is kept only while the predicted RMS ``|E(k)|`` falls, so a model that disagrees with
+    the machine stops early; the next measured run checks the result as usual (the learning guard).
+
+    Returns the correction, its clips and what was done.
+    """
+    kind = measured.kind
+
+    def rms(e: NDArray[np.float64], ok: NDArray[np.bool_]) -> float:
+        return float(np.sqrt(np.mean(np.einsum("ij,ij->i", e[ok], e[ok])))) if ok.any() else 0.0
+
+    pred = [rms(measured.e_mm, measured.valid)]
+    if steps <= 0:
+        return u_step, clips_step, ModelSteps(0, pred, "steps")
+    if learner.law.memory != 1:
+        return u_step, clips_step, ModelSteps(0, pred, "law")
+    profile, original = learner.profile, learner.program
+    s_meas = virtual_signal(original, u_meas, profile, kind)
+
+    def predicted(u: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_], float]:
+        s_u = virtual_signal(original, u, profile, kind)
+        ok = measured.valid & s_meas.valid & s_u.valid
+        e = np.where(ok[:, None], measured.e_mm + s_u.e_mm - s_meas.e_mm, 0.0)
+        return e, ok, rms(e, ok)
+
+    e, ok, r = predicted(u_step)
+    pred.append(r)
+    u, clips, made, reason = u_step, clips_step, 0, "steps"
+    for j in range(1, steps + 1):
+        u_new, clips_new = learner.propose([u], [CommandSignal(e, measured.t_s, ok, kind)], scale=scale)
+        e_new, ok_new, r_new = predicted(u_new)
+        if not r_new < r:
+            reason = "no gain"
+            break
+        u, clips, e, ok, r, made = u_new, clips_new, e_new, ok_new, r_new, j
+        pred.append(r)
+    return u, clips, ModelSteps(made, pred, reason)
+
+
 def program_with_corrections(
     program: Program, corrections_mm: NDArray[np.float64], profile: MachineProfile
 ) -> tuple[str, Program]:

@@ -66,7 +66,10 @@ corner, as LinuxCNC's trajectory planner does (``tp.c``/``tc.c``, 2.9):
 Compared with LinuxCNC 2.9 (``configs/linuxcnc-sim``, 100 mm/s, 1000 mm/s²):
 on jscut's ``jsdc.gcode`` with ``G64`` the planned path is 12 µm RMS (234 µm
 at most) from LinuxCNC's and 1.3 % slower; with ``G64 P0.05`` 2.3 µm RMS
-(26 µm at most), 3.5 % slower; a square in ``G61`` is 0.1 µm from it.
+(26 µm at most), 3.5 % slower; a square in ``G61`` is 0.1 µm from it. Where the
+virtual CNC must move as LinuxCNC does (its corners and short moves decide the
+error), ``planner.profile: linuxcnc`` plans with LinuxCNC's own rules instead
+(:mod:`ilcnc.plan_tp`).
 
 Inverse time
 ------------
@@ -225,6 +228,22 @@ class PlanLimits:
 _PROFILE_PATH_CONTROL = {"g64": BLEND_NO_BOUND, "g61": BLEND_EXACT_PATH, "g61.1": BLEND_EXACT_STOP}
 
 
+#: ``planner.profile`` values: ilcnc's filter planner in three shapes, and LinuxCNC 2.9's planner (:mod:`ilcnc.plan_tp`).
+PLANNER_PROFILES = ("seven_phase", "cubic", "constant_feed", "linuxcnc")
+
+
+def _plan_linuxcnc(moves: MoveTable, limits: PlanLimits, period_s: float, corner_tolerance_mm: float) -> Reference:
+    """:func:`ilcnc.plan_tp.plan_linuxcnc` as a :class:`Reference`."""
+    from ilcnc.plan_tp import plan_linuxcnc
+
+    pos, mv, speed = plan_linuxcnc(moves, limits.velocity_mm_s, limits.rapid_mm_s, limits.acceleration_mm_s2,
+                                   period_s, corner_tolerance_mm=corner_tolerance_mm)
+    on = mv >= 0
+    safe = np.maximum(mv, 0)
+    return Reference(period_s, pos, mv, np.where(on, moves.command[safe], -1).astype(np.int32),
+                     np.where(on, moves.line[safe], 0).astype(np.int32), speed)
+
+
 def plan_program(program: object, profile: MachineProfile, *, mode: str | None = None) -> Reference:
     """Plan a :class:`~ilcnc.program.model.Program` with a machine profile.
 
@@ -263,8 +282,9 @@ def plan_moves(
         Axis limits (mm, s).
     period_s : float
         Servo period, s.
-    mode : {"seven_phase", "cubic", "constant_feed"}
-        Profile kind (see the module docstring).
+    mode : {"seven_phase", "cubic", "constant_feed", "linuxcnc"}
+        Profile kind (see the module docstring; ``linuxcnc``: :mod:`ilcnc.plan_tp`, which takes no jerk limit,
+        filter or in-position wait).
     corner_tolerance_mm : float
         Largest distance the planned path may cut a corner or shrink an arc, mm.
     jerk_time_constant_s : float
@@ -288,8 +308,10 @@ def _plan(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corn
     copied. The move, command and line columns are expanded from run lengths (the interpolator visits
     the moves in order).
     """
-    if mode not in ("seven_phase", "cubic", "constant_feed"):
+    if mode not in PLANNER_PROFILES:
         raise ValueError(f"unknown planner profile {mode!r}")
+    if mode == "linuxcnc":
+        return _plan_linuxcnc(moves, limits, period_s, corner_tolerance_mm)
     m = len(moves)
     length = move_lengths_mm(moves)
     speed = _nominal_speed(moves, length, limits)
@@ -417,8 +439,13 @@ def _profile_pieces(program: object, profile: MachineProfile, chunk: int, mode: 
     """The moves :func:`plan_chunks` plans and the pieces (positions, moves) of their reference, in order."""
     moves = _profile_moves(program, profile)
     mode = mode or profile.planner.profile
-    if mode not in ("seven_phase", "cubic", "constant_feed"):
+    if mode not in PLANNER_PROFILES:
         raise ValueError(f"unknown planner profile {mode!r}")
+    if mode == "linuxcnc":
+        # planned whole (its look-ahead and corners are sequential), handed out as one piece
+        ref = _plan_linuxcnc(moves, PlanLimits.from_profile(profile), profile.machine.servo_period_s,
+                             profile.planner.corner_tolerance_mm)
+        return moves, iter([(ref.pos_mm, ref.move)])
     pieces = _plan_pieces(moves, PlanLimits.from_profile(profile), profile.machine.servo_period_s, mode,
                           profile.planner.corner_tolerance_mm, profile.planner.jerk_time_constant_s,
                           profile.planner.in_position_s, 12, chunk)

@@ -491,8 +491,9 @@ SPECS: tuple[Spec, ...] = (
     _c(
         "planner.profile",
         "seven_phase: constant-jerk 7-phase S-curve; cubic: jerk-continuous (cubic acceleration, seed 004);"
-        " constant_feed: programmed feed, no ramps.",
-        ("seven_phase", "cubic", "constant_feed"),
+        " constant_feed: programmed feed, no ramps; linuxcnc: LinuxCNC 2.9's planner (trapezoidal, blend arcs"
+        " at corners, no jerk limit or in-position wait; ilcnc/plan_tp.py).",
+        ("seven_phase", "cubic", "constant_feed", "linuxcnc"),
         default="seven_phase",
     ),
     _f(
@@ -664,6 +665,17 @@ SPECS: tuple[Spec, ...] = (
         "",
         0,
         1000,
+        default=0,
+        kind="int",
+    ),
+    _f(
+        "learning.model_steps",
+        "With a measured log or points (learn --log/--points): virtual-CNC steps made after each measured one,"
+        " each on the measured error plus the change the virtual CNC predicts for the new correction"
+        " (model-assisted learning; 0: the measured step alone; the p law only).",
+        "",
+        0,
+        20,
         default=0,
         kind="int",
     ),
@@ -1161,7 +1173,7 @@ class PlannerSection:
     Parameters
     ----------
     profile : str
-        ``"seven_phase"``, ``"cubic"`` or ``"constant_feed"``.
+        ``"seven_phase"``, ``"cubic"``, ``"constant_feed"`` or ``"linuxcnc"``.
     corner_tolerance_mm : float
         Corner tolerance, mm.
     path_control : str
@@ -1206,6 +1218,8 @@ class LearningSection:
         Q-filter cut-off, Hz; ``None`` for no filter.
     lead_commands : int
         Lead of the update in commands.
+    model_steps : int
+        Virtual-CNC steps after each measured step (0: none).
     error : str
         Error estimate the law learns from (``"auto"`` picks the law's own).
     """
@@ -1218,6 +1232,7 @@ class LearningSection:
     q_filter_hz: float | None = _default("learning.q_filter_hz")
     lead_commands: int = _default("learning.lead_commands")
     error: str = _default("learning.error")
+    model_steps: int = _default("learning.model_steps")
 
     def gain(self, name: str, axis: str) -> float:
         """Return gain ``name`` for ``axis`` (resolving per-axis mappings).
@@ -1543,6 +1558,8 @@ class MachineProfile:
             "lead_commands": lr.lead_commands,
             "error": lr.error,
         }
+        if lr.model_steps:
+            learning["model_steps"] = lr.model_steps
         if lr.q_filter_hz is not None:
             learning["q_filter_hz"] = lr.q_filter_hz
         output: dict[str, Any] = {"dialect": o.dialect}

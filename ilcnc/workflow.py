@@ -33,7 +33,16 @@ from numpy.typing import NDArray
 from ilcnc.command_error import CommandSignal, error_kind
 from ilcnc.errors import LogError, StateError
 from ilcnc.fileio import read_bytes, write_atomic
-from ilcnc.learn import Clip, IterationRecord, Learner, best_stats, grew, learn_virtual, program_with_corrections
+from ilcnc.learn import (
+    Clip,
+    IterationRecord,
+    Learner,
+    best_stats,
+    grew,
+    learn_virtual,
+    model_assisted_correction,
+    program_with_corrections,
+)
 from ilcnc.measure import path_position_mm
 from ilcnc.profile import MachineProfile, load_profile
 from ilcnc.program import read_program
@@ -474,6 +483,15 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         ee, tt, vv = state.read_errors(e)
         s_hist.append(CommandSignal(ee, tt, vv, kind))
     u_new, clips = learner.propose(u_hist, s_hist, scale=state.gain_scale)
+    steps = profile.learning.model_steps
+    if steps:
+        u_new, clips, ms = model_assisted_correction(learner, u_hist[-1], s_hist[-1], u_new, clips, steps,
+                                                     scale=state.gain_scale)
+        why = {"steps": "", "no gain": ": the next would not lower the predicted error",
+               "law": f": the {profile.learning.law} law keeps a history"}[ms.reason]
+        notes.append(f"model-assisted step: {ms.made} of {steps} virtual-CNC steps kept{why}; RMS |E(k)| measured"
+                     f" {ms.predicted_rms_mm[0] * 1e3:.2f} µm, predicted "
+                     + " → ".join(f"{r * 1e3:.2f}" for r in ms.predicted_rms_mm[1:]) + " µm")
     text, _prog = program_with_corrections(original, u_new, profile)
     nxt = entry.iteration + 1
     name = f"iter-{nxt:03d}{state.part['suffix']}"

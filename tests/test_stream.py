@@ -39,7 +39,8 @@ def _concat(chunks, name):
 
 
 @pytest.mark.parametrize(("program", "profile", "chunk"), [
-    (JSDC, "linuxcnc-sim.yaml", 5_000),        # one feed group of 36 k samples, planned in ranges
+    (JSDC, "example-mill.yaml", 5_000),        # one feed group of 36 k samples, planned in ranges
+    (JSDC, "linuxcnc-sim.yaml", 5_000),        # LinuxCNC's planner: planned whole, handed out in chunks
     (JSDC, "seed004-ward-sopdt.yaml", 2_048),
     (CDS, "example-mill.yaml", 3_000),          # 350 groups: short ones whole, stand-stills across seams
     (HEIDENHAIN, "example-mill.yaml", 4_096),

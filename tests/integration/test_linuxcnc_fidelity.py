@@ -2,13 +2,11 @@
 
 ``ilcnc simulate PROG --profile configs/linuxcnc-sim.yaml --compare LOG`` on a log LinuxCNC recorded of the
 same program. PyCAM's ``tiny_cat_outline.ngc`` (CAMotics example, 2,808 G01 commands, ``G61`` exact path)
-runs in ~40 s at ×8. In exact-path mode LinuxCNC's planner and ilcnc's agree (a square in ``G61`` is 0.1 µm
-from it, ilcnc/plan.py), and the drive model was identified on the same simulation: the prediction must meet
-issue 9's targets (correlation ≥ 0.9, difference ≤ 20 % of the error). Measured 2026-11-23: correlation
-1.000, difference 3 %, sample contour RMS 3.23 µm measured against 3.29 µm predicted.
-
-Programs in blended ``G64`` mode do not meet them yet (jsdc: correlation 0.87, difference 42 %; checked in
-test_linuxcnc_learning.py): LinuxCNC's corner blends are not ilcnc's (docs/papers.md, "Real controller").
+runs in ~40 s at ×8; the profile plans as LinuxCNC does (planner.profile linuxcnc) and its drive model was
+identified on the same simulation, so the prediction must meet issue 9's targets (correlation ≥ 0.9,
+difference ≤ 20 % of the error). Measured 2026-11-23: correlation 1.000, difference 3 %, sample contour RMS
+3.23 µm measured against 3.41 µm predicted. A blended (plain ``G64``) program is checked in
+test_linuxcnc_learning.py (jsdc: 0.986, 14 %).
 """
 
 from __future__ import annotations
