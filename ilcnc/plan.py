@@ -408,7 +408,8 @@ def plan_chunks(program: object, profile: MachineProfile, *, chunk_samples: int 
     chunk is planned twice: its passes first run without writing anything (they check the limits and
     re-plan slower where needed), then the final pass runs again range by range, carrying its filter
     state from one range to the next (:func:`_group_range`). Without numba the numpy path plans each
-    group whole.
+    group whole. ``planner.profile: linuxcnc`` plans the whole program at once (its corners and look-ahead
+    are sequential; stellabee1's 3.4 M samples in 1.5 s) and hands that reference out in chunks.
     """
     chunk = max(int(chunk_samples), _BLOCK)
     chunk -= chunk % _BLOCK

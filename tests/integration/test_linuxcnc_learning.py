@@ -49,7 +49,10 @@ def test_four_iterations_on_linuxcnc_reduce_the_contour_error(loop) -> None:
     rms = [it["contour_error_mm"]["rms"] for it in its[:5]]
     assert all(it["kept"] for it in its[:5]), its
     assert all(b < a for a, b in pairwise(rms)), rms
-    assert rms[4] < 0.9 * rms[0], rms  # figures per iteration: docs/papers.md, section "real controller"
+    # measured 2026-11-23 with the shipped profile (3 model-assisted steps per measured one): 41.61 -> 35.29 ->
+    # 33.48 -> 32.32 -> 31.36 µm (-24.6 %; measured steps only: -15 %); jsdc's remaining error sits at the
+    # corners of its long transit moves (docs/papers.md, section "Real controller")
+    assert rms[4] < 0.9 * rms[0], rms
     st = LearnState.load(loop["state"])
     assert [e.iteration for e in st.iterations] == [0, 1, 2, 3, 4, 5]
     assert all(e.measured_from["kind"] == "log" for e in st.iterations[:5])
