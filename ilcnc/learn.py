@@ -548,7 +548,8 @@ class ModelSteps:
         model step, mm.
     reason : str
         Why the steps ended (``"steps"``: all made; ``"no gain"``: the next one would not lower the predicted
-        error; ``"law"``: the law keeps a history and takes no model step).
+        error; ``"law"``: the law keeps a history and takes no model step; ``"kind"``: the measurement's
+        error estimate is not one the virtual CNC predicts, e.g. probed points).
     """
 
     made: int
@@ -599,6 +600,8 @@ def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], mea
         return u_step, clips_step, ModelSteps(0, pred, "steps")
     if learner.law.memory != 1:
         return u_step, clips_step, ModelSteps(0, pred, "law")
+    if kind not in ("path", "crossing"):
+        return u_step, clips_step, ModelSteps(0, pred, "kind")  # e.g. probed points: no E(k) the model predicts
     profile, original = learner.profile, learner.program
     s_meas = virtual_signal(original, u_meas, profile, kind)
 

@@ -488,7 +488,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         u_new, clips, ms = model_assisted_correction(learner, u_hist[-1], s_hist[-1], u_new, clips, steps,
                                                      scale=state.gain_scale)
         why = {"steps": "", "no gain": ": the next would not lower the predicted error",
-               "law": f": the {profile.learning.law} law keeps a history"}[ms.reason]
+               "law": f": the {profile.learning.law} law keeps a history",
+               "kind": f": the virtual CNC predicts no {meas.signal.kind} error"}[ms.reason]
         notes.append(f"model-assisted step: {ms.made} of {steps} virtual-CNC steps kept{why}; RMS |E(k)| measured"
                      f" {ms.predicted_rms_mm[0] * 1e3:.2f} µm, predicted "
                      + " → ".join(f"{r * 1e3:.2f}" for r in ms.predicted_rms_mm[1:]) + " µm")

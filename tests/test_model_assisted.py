@@ -88,3 +88,14 @@ def test_model_steps_are_range_checked() -> None:
     d["learning"]["model_steps"] = 21
     with pytest.raises(Exception, match=r"learning\.model_steps: must be >= 0 and <= 20, got 21"):
         profile_from_dict(d)
+
+
+def test_probed_points_take_no_model_step(tmp_path: Path) -> None:
+    prof = load_profile(PROFILE)
+    prog = read_program(JSDC)
+    learner = Learner.for_program(prog, prof)
+    k = prog.n_commands
+    sig = CommandSignal(np.full((k, 3), 1e-3), np.arange(k, dtype=float), np.ones(k, bool), "points")
+    u_step = np.full((k, 3), 5e-4)
+    u, _clips, ms = model_assisted_correction(learner, np.zeros((k, 3)), sig, u_step, [], 3)
+    assert u is u_step and ms.made == 0 and ms.reason == "kind"
