@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc.command_error import CommandSignal, error_kind, measurement_gate_mm, signal_of_simulation
+from ilcnc.command_error import CommandSignal, error_kind
 from ilcnc.errors import LogError
 from ilcnc.logs import AxisLog
 from ilcnc.profile import MachineProfile
@@ -180,23 +180,13 @@ def fidelity_of_log(program: Program, log: AxisLog, profile: MachineProfile, *, 
         The log is not a run of the program (:func:`ilcnc.measure.measure_log`), or no command was
         measured by both runs.
     """
-    from ilcnc.machine_errors import ErrorSources
+    from ilcnc.learn import virtual_run
     from ilcnc.measure import measure_log
-    from ilcnc.simulate import simulate_program
-    from ilcnc.stream import simulate_streamed, stream_unsupported
 
     kind = error_kind(profile)
-    gate = measurement_gate_mm(profile)
     meas = measure_log(log, program, program, profile, kind, source=source, units=units)
-    # the prediction learn_virtual would learn from (chunk by chunk where the profile allows: same numbers)
-    sources = ErrorSources.from_profile(profile)
-    sim: Any
-    if stream_unsupported(profile, kind, sources=sources) is None:
-        sim = simulate_streamed(program, profile, gate_mm=gate)
-        pred = sim.signal
-    else:
-        sim = simulate_program(program, profile, sources=sources)
-        pred = signal_of_simulation(sim, program, kind, gate)
+    # the prediction learn would learn from on the virtual CNC (chunk by chunk where the profile allows)
+    sim, pred = virtual_run(program, None, profile, kind)
     fid = compare_signals(meas.signal, pred, command_line=np.asarray(program.command_line))
     if fid.commands == 0:
         raise LogError(source, None, "no command was measured by both the log and the virtual CNC: nothing to compare")

@@ -557,22 +557,29 @@ class ModelSteps:
     reason: str
 
 
-def virtual_signal(original: Program, u_mm: NDArray[np.float64], profile: MachineProfile, kind: str) -> CommandSignal:
-    """``E(k)`` the virtual CNC of ``profile`` predicts for ``original`` run with corrections ``u_mm`` (K, 3)."""
+def virtual_run(original: Program, u_mm: NDArray[np.float64] | None, profile: MachineProfile, kind: str, *,
+                sources: Any = None) -> tuple[Any, CommandSignal]:
+    """Run ``original`` with corrections ``u_mm`` (K, 3; None or zeros: as it is) on the virtual CNC of
+    ``profile``: the run (its ``stats``) and the ``E(k)`` it predicts, chunk by chunk where the profile allows.
+
+    ``sources`` are the profile's error sources when already loaded (:class:`ilcnc.machine_errors.ErrorSources`).
+    """
     from ilcnc.machine_errors import ErrorSources
     from ilcnc.simulate import simulate_program
     from ilcnc.stream import simulate_streamed, stream_unsupported
 
     prog = original
-    if np.any(u_mm):
+    if u_mm is not None and np.any(u_mm):
         _text, prog = program_with_corrections(original, u_mm, profile)
     against = None if prog is original else original
     gate = measurement_gate_mm(profile)
-    sources = ErrorSources.from_profile(profile)
+    if sources is None:
+        sources = ErrorSources.from_profile(profile)
     if stream_unsupported(profile, kind, sources=sources) is None:
-        return simulate_streamed(prog, profile, against=against, gate_mm=gate).signal
+        st = simulate_streamed(prog, profile, against=against, gate_mm=gate)
+        return st, st.signal
     sim = simulate_program(prog, profile, against=against, sources=sources)
-    return signal_of_simulation(sim, original, kind, gate)
+    return sim, signal_of_simulation(sim, original, kind, gate)
 
 
 def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], measured: CommandSignal,
@@ -602,11 +609,14 @@ def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], mea
         return u_step, clips_step, ModelSteps(0, pred, "law")
     if kind not in ("path", "crossing"):
         return u_step, clips_step, ModelSteps(0, pred, "kind")  # e.g. probed points: no E(k) the model predicts
+    from ilcnc.machine_errors import ErrorSources
+
     profile, original = learner.profile, learner.program
-    s_meas = virtual_signal(original, u_meas, profile, kind)
+    sources = ErrorSources.from_profile(profile)  # map, FRF and stock files read once for all the runs
+    _run, s_meas = virtual_run(original, u_meas, profile, kind, sources=sources)
 
     def predicted(u: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_], float]:
-        s_u = virtual_signal(original, u, profile, kind)
+        _run, s_u = virtual_run(original, u, profile, kind, sources=sources)
         ok = measured.valid & s_meas.valid & s_u.valid
         e = np.where(ok[:, None], measured.e_mm + s_u.e_mm - s_meas.e_mm, 0.0)
         return e, ok, rms(e, ok)

@@ -236,8 +236,7 @@ def _plan_linuxcnc(moves: MoveTable, limits: PlanLimits, period_s: float, corner
     """:func:`ilcnc.plan_tp.plan_linuxcnc` as a :class:`Reference`."""
     from ilcnc.plan_tp import plan_linuxcnc
 
-    pos, mv, speed = plan_linuxcnc(moves, limits.velocity_mm_s, limits.rapid_mm_s, limits.acceleration_mm_s2,
-                                   period_s, corner_tolerance_mm=corner_tolerance_mm)
+    pos, mv, speed = plan_linuxcnc(moves, limits, period_s, corner_tolerance_mm=corner_tolerance_mm)
     on = mv >= 0
     safe = np.maximum(mv, 0)
     return Reference(period_s, pos, mv, np.where(on, moves.command[safe], -1).astype(np.int32),

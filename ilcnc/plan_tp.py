@@ -45,6 +45,7 @@ made).
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,6 +53,9 @@ from numpy.typing import NDArray
 from ilcnc._jit import njit
 from ilcnc.program.geometry import arc_sweep_rad, move_lengths_mm
 from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
+
+if TYPE_CHECKING:
+    from ilcnc.plan import PlanLimits
 
 __all__ = ["ACC_RATIO_NORMAL", "ACC_RATIO_TANGENTIAL", "BLEND_DIST_FRACTION", "GAP_CYCLES", "KINK_RATIO",
            "LOOKAHEAD_SEGMENTS", "MIN_SEGMENT_CYCLES", "TOLERANCE_RATIO", "plan_linuxcnc"]
@@ -106,8 +110,8 @@ def _inscribed(n0: float, n1: float, n2: float, bound: NDArray[np.float64]) -> f
 
 
 @njit(cache=True, nogil=True)
-def _segments(start, end, length, kind, tol, rapid, vreq, t_in, t_out, arc_c, arc_ax, arc_th0, arc_sgn, arc_sw,
-              arc_r0, arc_r1, vlim, alim, period, kink_ratio, gap_cycles):  # pragma: no cover - compiled
+def _segments(start, end, length, kind, tol, rapid, vreq, t_in, t_out, arc_c, arc_ax, arc_r0, arc_r1, vlim, alim,
+              period, kink_ratio, gap_cycles):  # pragma: no cover - compiled
     """Segments of a move table: lines, blend arcs at corners, program arcs, with speeds, accelerations and the
     end condition of each (module docstring). Moves of zero length are skipped."""
     m = start.shape[0]
@@ -414,8 +418,7 @@ def _arc_geometry(moves: MoveTable) -> tuple[NDArray[np.float64], ...]:
     return c, ax, th0, sgn, sweep, r0, r1, dz
 
 
-def plan_linuxcnc(moves: MoveTable, velocity_mm_s: NDArray[np.float64], rapid_mm_s: NDArray[np.float64],
-                  acceleration_mm_s2: NDArray[np.float64], period_s: float, *, corner_tolerance_mm: float = 0.0,
+def plan_linuxcnc(moves: MoveTable, limits: PlanLimits, period_s: float, *, corner_tolerance_mm: float = 0.0,
                   lookahead_segments: int = LOOKAHEAD_SEGMENTS
                   ) -> tuple[NDArray[np.float64], NDArray[np.int32], NDArray[np.float64]]:
     """Plan a move table as LinuxCNC 2.9's trajectory planner does (module docstring).
@@ -425,8 +428,8 @@ def plan_linuxcnc(moves: MoveTable, velocity_mm_s: NDArray[np.float64], rapid_mm
     moves : MoveTable
         The program's moves, with the path control of every move (``blend_tol_mm``: < 0 exact stop, 0 exact
         path, > 0 ``G64 P``, inf ``G64`` without P; NaN takes ``corner_tolerance_mm``).
-    velocity_mm_s, rapid_mm_s, acceleration_mm_s2 : ndarray (3,)
-        Per-axis feed and rapid velocity limits, mm/s, and acceleration limits, mm/s² (inf: no limit).
+    limits : PlanLimits
+        Per-axis feed and rapid velocity limits and acceleration limits (the jerk limit is not used).
     period_s : float
         Servo period, s.
     corner_tolerance_mm : float
@@ -448,30 +451,21 @@ def plan_linuxcnc(moves: MoveTable, velocity_mm_s: NDArray[np.float64], rapid_mm
     if m == 0 or not (length > 1e-9).any():
         start = moves.start_mm[0] if m else np.zeros(3)
         return np.asarray(start, dtype=np.float64).reshape(1, 3), np.full(1, -1, np.int32), np.zeros(m)
-    from ilcnc.plan import _directions  # the planner's tangents of lines, arcs and helices
+    from ilcnc.plan import _directions, _nominal_speed  # tangents of lines, arcs and helices; capped feeds
 
     t_in, t_out = _directions(moves)
     rapid = moves.kind == MOVE_RAPID
-    is_arc = moves.kind >= MOVE_ARC_CW
-    lim_v = np.where(np.isfinite(velocity_mm_s), velocity_mm_s, 1e12)
-    lim_r = np.where(np.isfinite(rapid_mm_s), rapid_mm_s, 1e12)
-    lim_a = np.where(np.isfinite(acceleration_mm_s2), acceleration_mm_s2, 1e12)
-    feed = moves.feed_mm_min / 60.0
-    vreq = np.where(rapid, np.inf, np.where(np.isfinite(feed) & (feed > 0), feed, np.inf))
-    # a line's speed: its feed (a rapid: unbounded), capped so that no axis exceeds its (rapid) velocity limit
-    box = np.where(rapid[:, None], lim_r[None, :], lim_v[None, :])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.abs(moves.end_mm - moves.start_mm) / np.where(length > 0, length, 1.0)[:, None]
-        cap = np.min(np.where(u > 1e-12, box / np.maximum(u, 1e-300), np.inf), axis=1)
-    speed = np.where(is_arc, vreq, np.minimum(vreq, cap))
-    speed = np.where(np.isfinite(speed), speed, float(np.min(lim_v)))
+    lim_v = np.where(np.isfinite(limits.velocity_mm_s), limits.velocity_mm_s, 1e12)
+    lim_a = np.where(np.isfinite(limits.acceleration_mm_s2), limits.acceleration_mm_s2, 1e12)
+    # every move's speed: its feed (a rapid: the rapid limits), capped so that no axis exceeds its limit
+    speed = _nominal_speed(moves, length, limits)
     tol = np.asarray(moves.blend_tol_mm, dtype=np.float64)
     tol = np.where(np.isnan(tol), corner_tolerance_mm, np.where(tol < 0, -1.0, tol))
     c, ax, th0, sgn, sweep, r0, r1, dz = _arc_geometry(moves)
     segs = _segments(np.ascontiguousarray(moves.start_mm, dtype=np.float64),
                      np.ascontiguousarray(moves.end_mm, dtype=np.float64), length, moves.kind.astype(np.int64), tol,
-                     rapid, speed, np.ascontiguousarray(t_in), np.ascontiguousarray(t_out), c, ax, th0, sgn,
-                     sweep, r0, r1, lim_v.astype(np.float64), lim_a.astype(np.float64), float(period_s),
+                     rapid, speed, np.ascontiguousarray(t_in), np.ascontiguousarray(t_out), c, ax, r0, r1,
+                     lim_v.astype(np.float64), lim_a.astype(np.float64), float(period_s),
                      KINK_RATIO, GAP_CYCLES)
     live = segs[8] > 0.0
     skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent, kink, owner = (x[live] for x in segs)

@@ -484,12 +484,15 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         s_hist.append(CommandSignal(ee, tt, vv, kind))
     u_new, clips = learner.propose(u_hist, s_hist, scale=state.gain_scale)
     steps = profile.learning.model_steps
-    if steps:
+    if steps and meas.kind != "log":
+        notes.append("no model-assisted step: probed points measure end points, not the path error the virtual CNC"
+                     " predicts")
+    elif steps:
+        # the history holds the state's error estimate (a log measures it; points do not: above)
         u_new, clips, ms = model_assisted_correction(learner, u_hist[-1], s_hist[-1], u_new, clips, steps,
                                                      scale=state.gain_scale)
         why = {"steps": "", "no gain": ": the next would not lower the predicted error",
-               "law": f": the {profile.learning.law} law keeps a history",
-               "kind": f": the virtual CNC predicts no {meas.signal.kind} error"}[ms.reason]
+               "law": f": the {profile.learning.law} law keeps a history"}[ms.reason]
         notes.append(f"model-assisted step: {ms.made} of {steps} virtual-CNC steps kept{why}; RMS |E(k)| measured"
                      f" {ms.predicted_rms_mm[0] * 1e3:.2f} µm, predicted "
                      + " → ".join(f"{r * 1e3:.2f}" for r in ms.predicted_rms_mm[1:]) + " µm")

@@ -71,16 +71,38 @@ def test_model_steps_take_the_measured_step_further(tmp_path: Path) -> None:
     assert "of 3 virtual-CNC steps kept" in note and "predicted" in note
 
 
-def test_zero_steps_keep_the_measured_step(tmp_path: Path) -> None:
-    prof = load_profile(PROFILE)
+def _measured_step(kind: str) -> tuple[Learner, np.ndarray, CommandSignal, np.ndarray]:
+    """A learner on jsdc, no correction run yet, a measured error of 1 µm per axis, a proposed step of 0.5 µm."""
     prog = read_program(JSDC)
-    learner = Learner.for_program(prog, prof)
     k = prog.n_commands
-    sig = CommandSignal(np.full((k, 3), 1e-3), np.arange(k, dtype=float), np.ones(k, bool), "path")
-    u_step = np.full((k, 3), 5e-4)
-    u, clips, ms = model_assisted_correction(learner, np.zeros((k, 3)), sig, u_step, [], 0)
+    sig = CommandSignal(np.full((k, 3), 1e-3), np.arange(k, dtype=float), np.ones(k, bool), kind)
+    return Learner.for_program(prog, load_profile(PROFILE)), np.zeros((k, 3)), sig, np.full((k, 3), 5e-4)
+
+
+def test_zero_steps_keep_the_measured_step() -> None:
+    learner, u_meas, sig, u_step = _measured_step("path")
+    u, clips, ms = model_assisted_correction(learner, u_meas, sig, u_step, [], 0)
     assert u is u_step and clips == [] and ms.made == 0 and ms.reason == "steps"
     assert ms.predicted_rms_mm == [pytest.approx(np.sqrt(3) * 1e-3)]
+
+
+def test_a_signal_the_model_does_not_predict_takes_no_model_step() -> None:
+    learner, u_meas, sig, u_step = _measured_step("points")
+    u, _clips, ms = model_assisted_correction(learner, u_meas, sig, u_step, [], 3)
+    assert u is u_step and ms.made == 0 and ms.reason == "kind"
+
+
+def test_probed_points_take_no_model_step(tmp_path: Path) -> None:
+    pts = tmp_path / "probe.csv"
+    pts.write_text("k,dx,dy,dz\n" + "".join(f"{k},0.004,-0.002,0\n" for k in range(0, 2381, 7)))
+    runs = {}
+    for steps in (0, 3):
+        model = _profile(tmp_path, f"model{steps}", model_steps=steps)
+        runs[steps] = _cli("learn", JSDC, "--profile", model, "--points", pts, "--state", tmp_path / f"st{steps}",
+                           "--out", tmp_path / f"p{steps}.gcode")
+    assert (tmp_path / "p0.gcode").read_bytes() == (tmp_path / "p3.gcode").read_bytes()
+    assert "no model-assisted step: probed points measure end points" in " ".join(runs[3]["notes"])
+    assert not any("model-assisted" in n for n in runs[0]["notes"])
 
 
 def test_model_steps_are_range_checked() -> None:
@@ -89,13 +111,3 @@ def test_model_steps_are_range_checked() -> None:
     with pytest.raises(Exception, match=r"learning\.model_steps: must be >= 0 and <= 20, got 21"):
         profile_from_dict(d)
 
-
-def test_probed_points_take_no_model_step(tmp_path: Path) -> None:
-    prof = load_profile(PROFILE)
-    prog = read_program(JSDC)
-    learner = Learner.for_program(prog, prof)
-    k = prog.n_commands
-    sig = CommandSignal(np.full((k, 3), 1e-3), np.arange(k, dtype=float), np.ones(k, bool), "points")
-    u_step = np.full((k, 3), 5e-4)
-    u, _clips, ms = model_assisted_correction(learner, np.zeros((k, 3)), sig, u_step, [], 3)
-    assert u is u_step and ms.made == 0 and ms.reason == "kind"
