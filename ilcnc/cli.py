@@ -329,6 +329,9 @@ def learn(
         typer.Option("--points-reach", min=0.0, help="With --points: longest path gap (mm) between measured commands"
                      " bridged by interpolation (default: 3x their median spacing)."),
     ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", help="Virtual learning: replace an earlier run's OUT and state (never an input).")
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Learn corrections of the G01 end points and write the compensated program.
@@ -342,7 +345,7 @@ def learn(
     _check_log_options(log_format, log_units)
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
                        log_period_s=log_period, points_reach_mm=points_reach, log_columns=log_columns,
-                       log_offset=_parse_offset(log_offset))
+                       log_offset=_parse_offset(log_offset), force=force)
     console = _console()
     try:
         if as_json or log is not None or points is not None:

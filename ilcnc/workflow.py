@@ -20,9 +20,11 @@ with the ``--state`` of its run it continues that run.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -137,6 +139,7 @@ class LearnRequest:
     points_reach_mm: float | None = None
     log_columns: str | None = None
     log_offset: tuple[float, float, float] | None = None
+    force: bool = False
 
 
 @dataclass(slots=True)
@@ -288,8 +291,44 @@ def _virtual(req: LearnRequest, profile: MachineProfile, profile_sha: str, data:
              relation: str, progress: Callable[[int, int, str], None] | None) -> LearnOutcome:
     state_dir = req.state or _default_state_dir(req.out)
     if state is None and LearnState.exists(state_dir):
-        raise StateError(state_dir, None, f"already holds a learning run: continue it with --state {state_dir}, or"
-                         " choose another --out / --state")
+        if not req.force:
+            raise StateError(state_dir, None, f"already holds a learning run: continue it with --state {state_dir},"
+                             " replace it with --force, or choose another --out / --state")
+        with _replacing(state_dir, req):
+            return _virtual_run(req, profile, profile_sha, data, None, relation, progress, state_dir)
+    return _virtual_run(req, profile, profile_sha, data, state, relation, progress, state_dir)
+
+
+@contextlib.contextmanager
+def _replacing(state_dir: Path, req: LearnRequest) -> Iterator[None]:
+    """``--force``: set the earlier run's state aside, drop it once the new run is written, restore it on failure."""
+    root = state_dir.resolve()
+    for p in (req.program, req.profile):
+        if root == p.resolve() or root in p.resolve().parents:
+            raise StateError(p, None, f"is inside the state {state_dir} that --force would replace: copy it out first")
+    try:
+        earlier = LearnState.load(state_dir)
+    except StateError:
+        earlier = None  # a damaged state is replaced like any other
+    if earlier is not None:
+        text = read_bytes(req.program).decode("latin-1")
+        for h in (sha256_bytes(text.encode("latin-1")), sha256_bytes(unstamp_text(text).encode("latin-1"))):
+            if h != earlier.part["sha256"] and earlier.find_program(h) is not None:
+                raise StateError(req.program, None, f"is an output of the run in {state_dir}: --force would correct it"
+                                 " twice; learn the original program")
+    aside = state_dir.with_name(f".{state_dir.name}.replaced-{os.getpid()}")
+    os.replace(state_dir, aside)
+    try:
+        yield
+    except BaseException:
+        shutil.rmtree(state_dir, ignore_errors=True)
+        os.replace(aside, state_dir)
+        raise
+    shutil.rmtree(aside, ignore_errors=True)
+
+
+def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, data: bytes, state: LearnState | None,
+                 relation: str, progress: Callable[[int, int, str], None] | None, state_dir: Path) -> LearnOutcome:
     if state is not None:
         where = req.program if relation == "original" else state.file(state.part["file"])
         original = read_program(where, default_units=profile.machine.units, data=state.read_original_bytes())
@@ -567,7 +606,10 @@ def learn_part(req: LearnRequest, *, progress: Callable[[int, int, str], None] |
     profile = load_profile(req.profile)
     profile_sha = sha256_bytes(read_bytes(req.profile))
     data = read_bytes(req.program)
-    state = LearnState.load(req.state) if req.state is not None and LearnState.exists(req.state) else None
+    if req.force and (req.log is not None or req.points is not None):
+        raise InputError(None, None, "--force starts a new virtual run; a step from --log/--points continues its --state")
+    fresh = req.force or req.state is None or not LearnState.exists(req.state)
+    state = None if fresh else LearnState.load(req.state)
     relation, entry = _resolve_part(req, data, state)
     if req.log is None and req.points is None:
         return _virtual(req, profile, profile_sha, data, state, relation, progress)

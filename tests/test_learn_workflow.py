@@ -81,6 +81,36 @@ def test_virtual_learn_writes_output_state_and_json(tmp_path) -> None:
     assert data2["iterations"][0]["iteration"] == best.iteration
 
 
+def test_force_replaces_an_earlier_run_but_never_an_input(tmp_path) -> None:
+    out = tmp_path / "jsdc.ilc.gcode"
+    state_dir = tmp_path / "jsdc.ilc.gcode.state"
+    first = _json("learn", JSDC, "--profile", SEED004, "--out", out, "--iterations", "2")
+    old_iterations = sorted(p.name for p in state_dir.iterdir())
+    # typed again with --force: a new run from iteration 0, the earlier state replaced, nothing left beside it
+    second = _json("learn", JSDC, "--profile", SEED004, "--out", out, "--iterations", "1", "--force")
+    assert [it["iteration"] for it in second["iterations"]] == [0, 1]
+    assert second["iterations"][0]["contour_error_mm"] == first["iterations"][0]["contour_error_mm"]
+    st = LearnState.load(state_dir)
+    assert [e.iteration for e in st.iterations] == [0, 1]
+    assert any(n.startswith("iter-002") for n in old_iterations)
+    assert not any(p.name.startswith("iter-002") for p in state_dir.iterdir())  # nothing of the earlier run is left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["jsdc.ilc.gcode", "jsdc.ilc.gcode.state"]
+    # an output of that run is refused as a new start even with --force (it would be corrected twice)
+    before = out.read_bytes()
+    code, msg = _run("learn", out, "--profile", SEED004, "--out", tmp_path / "again.gcode", "--state", state_dir, "--force")
+    assert code == 1 and "correct it twice" in _error_line(msg)
+    assert out.read_bytes() == before and LearnState.load(state_dir).iterations[-1].iteration == 1
+    # a program inside the state folder is an input: --force refuses to replace it
+    inside = state_dir / st.part["file"]
+    code, msg = _run("learn", inside, "--profile", SEED004, "--out", tmp_path / "x.gcode", "--state", state_dir, "--force")
+    assert code == 1 and "inside the state" in _error_line(msg)
+    assert LearnState.exists(state_dir) and inside.read_bytes() == JSDC.read_bytes()
+    # a measured step continues its state: --force has no meaning there
+    code, msg = _run("learn", JSDC, "--profile", SEED004, "--out", tmp_path / "m.gcode", "--log", tmp_path / "none.csv",
+                     "--state", state_dir, "--force")
+    assert code == 1 and "--force" in _error_line(msg)
+
+
 def test_measured_loop_three_steps_and_refusals(tmp_path) -> None:
     st = tmp_path / "st"
     run0 = _simulate_log(JSDC, tmp_path / "run0.csv")
