@@ -656,12 +656,20 @@ def linuxcnc_run(
     timeout_s: Annotated[float, typer.Option(
         "--timeout", min=1.0, help="Limit of the program's run, s of machine time (at --time-scale k: this / k of wall time)."
     )] = 600.0,
+    lock_timeout_s: Annotated[float, typer.Option(
+        "--lock-timeout", min=0.0,
+        help="How long to wait for the machine, s, while another run holds ilcnc's LinuxCNC lock or a LinuxCNC"
+             " not started by ilcnc is running (0: do not wait). Says on stderr whom it waits for.",
+    )] = 600.0,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Run PROGRAM on LinuxCNC headlessly and write its axis log (commanded and actual, per servo cycle).
 
     The log feeds `ilcnc learn PROGRAM --log LOG`. Runs are serialised by a
-    machine-wide lock (LinuxCNC is one instance per machine) and the leftovers
+    machine-wide lock (LinuxCNC is one instance per machine): a run that has
+    to wait prints on stderr who holds it (pid, user, program, since when) and
+    waits up to --lock-timeout, then fails naming the holder. A LinuxCNC not
+    started by ilcnc is waited for the same way, never stopped. The leftovers
     of a crashed run are cleaned up.
     """
     import tempfile
@@ -675,7 +683,8 @@ def linuxcnc_run(
         with tempfile.TemporaryDirectory(prefix="ilcnc-lcnc-") as tmp:
             raw_path = raw if raw is not None else Path(tmp) / "run.hal.log"
             res = lcnc.run_program(program, config, raw_path, time_scale=time_scale, settle_s=settle_s,
-                                   timeout_s=timeout_s)
+                                   timeout_s=timeout_s, lock_timeout_s=lock_timeout_s,
+                                   on_wait=lambda line: typer.echo(line, err=True))
             alog = res.log
             alog.k = commands_from_lines(alog.line, prog)
             write_axis_log(log, alog, protect=(program,))

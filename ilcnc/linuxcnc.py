@@ -14,12 +14,17 @@ How a run works (:func:`run_program`)
    modified (the interpreter rewrites its parameter file in the copy).
 2. A machine-wide ``fcntl`` lock serialises runs: LinuxCNC is a single
    instance per machine (fixed lock file and shared-memory keys; a second
-   launch kills the first).
+   launch kills the first). The holder writes who it is into the lock file
+   (pid, user, program, since); a run that has to wait tells ``on_wait`` who
+   holds it and how long it will wait (``lock_timeout_s``), then gives up
+   with :class:`LinuxCNCBusyError` naming the holder (:func:`run_lock`).
 3. Leftovers of a crashed earlier run are cleaned up: a launcher that an
    earlier ilcnc process started and did not see finish is stopped; a stale
    ``/tmp/linuxcnc.lock`` with no launcher alive is left to the launcher's
    own automatic clean-up (it runs without a tty). A LinuxCNC that someone
-   else is running is never touched: that is an error.
+   else is running (a launcher, ``linuxcncsvr``, ``milltask`` or
+   ``rtapi_app`` alive) is never touched: the run waits for it like for the
+   lock, and names it (:func:`other_linuxcnc`).
 4. ``linuxcnc -r sim.ini`` runs in its own process group with the driver
    (``driver.py``, run by Debian's ``/usr/bin/python3``, which has the
    ``linuxcnc`` module) as its display: home, run the program, settle, drain
@@ -51,13 +56,15 @@ import fcntl
 import json
 import math
 import os
+import pwd
 import re
 import shutil
 import signal
 import subprocess
 import tempfile
+import threading
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -67,10 +74,16 @@ from ilcnc.logs import HALSAMPLER_COLUMNS, AxisLog, read_halsampler
 
 __all__ = [
     "DEFAULT_CONFIG_DIR",
+    "DEFAULT_LOCK_TIMEOUT_S",
     "MAX_TIME_SCALE",
+    "LinuxCNCBusyError",
+    "LockHolder",
     "RunResult",
     "linuxcnc_available",
+    "lock_holder",
+    "other_linuxcnc",
     "read_ini",
+    "run_lock",
     "run_program",
     "scale_program_time",
     "scaled_ini_text",
@@ -91,6 +104,8 @@ LINUXCNC_LOCKFILE = Path("/tmp/linuxcnc.lock")
 SYSTEM_PYTHON = Path("/usr/bin/python3")
 FALLBACK_UID = 65534  # 'nobody': rtapi_app drops root to this uid
 DEFAULT_TIMEOUT_S = 600.0
+#: How long a run waits for the machine (another run's lock, another LinuxCNC) by default, s.
+DEFAULT_LOCK_TIMEOUT_S = 600.0
 _RUN_PREFIX = "ilcnc-lcnc-"
 _STARTUP_MARGIN_S = 60.0  # launch, homing, settle, shutdown on top of the program's own time limit
 
@@ -538,7 +553,7 @@ def _state_of(pid: int) -> str:
     return stat.rsplit(")", 1)[-1].split()[0]
 
 
-def _recover_previous(program: Path) -> None:
+def _recover_previous() -> None:
     """Clean up after an earlier ilcnc run that did not finish (called with the run lock held)."""
     state: dict = {}
     if STATE_PATH.exists():
@@ -559,40 +574,341 @@ def _recover_previous(program: Path) -> None:
         shutil.rmtree(old_dir, ignore_errors=True)
     with contextlib.suppress(OSError):
         STATE_PATH.unlink()
-    if LINUXCNC_LOCKFILE.exists():
-        alive = _launchers_alive()
-        if alive:
-            raise InputError(
-                program, None,
-                f"another LinuxCNC is running (launcher pid {alive[0]}, {LINUXCNC_LOCKFILE} exists); "
-                "ilcnc runs one instance at a time and does not stop someone else's",
-            )
-        # no launcher alive: leftovers of a crash that ilcnc has no record of. The launcher cleans them up
-        # itself when started without a tty ("trying to clean up other instance automatically", ~2 s).
+    # A LinuxCNC still running now is someone else's (_wait_other_linuxcnc). A stale /tmp/linuxcnc.lock with no
+    # LinuxCNC process alive is left over from a crash ilcnc has no record of: the launcher cleans it up itself
+    # when started without a tty ("trying to clean up other instance automatically", ~2 s).
+
+
+class LinuxCNCBusyError(InputError):
+    """Another LinuxCNC run holds the machine (ilcnc's run lock, or a LinuxCNC ilcnc did not start).
+
+    ``holder`` is the :class:`LockHolder` named in the message.
+    """
+
+    def __init__(self, file: str | Path | None, problem: str, holder: LockHolder | None) -> None:
+        super().__init__(file, None, problem)
+        self.holder = holder
+
+
+@dataclass(frozen=True, slots=True)
+class LockHolder:
+    """Who holds the machine: an ilcnc run (its lock record) or a LinuxCNC that ilcnc did not start.
+
+    Attributes
+    ----------
+    pid : int or None
+        Process id (None when it could not be found out).
+    user : str or None
+        Its user name (or uid).
+    program : str or None
+        The part program an ilcnc run is running.
+    command : str or None
+        Its command line (shortened).
+    since : float or None
+        When it took the lock (ilcnc) or started (another LinuxCNC), seconds since the epoch.
+    kind : str
+        ``"ilcnc"`` (holds :data:`LOCK_PATH`) or ``"linuxcnc"`` (a LinuxCNC not started by ilcnc).
+    """
+
+    pid: int | None
+    user: str | None = None
+    program: str | None = None
+    command: str | None = None
+    since: float | None = None
+    kind: str = "ilcnc"
+
+    def held_s(self, now: float | None = None) -> float | None:
+        """How long it has held the lock (or run), s."""
+        if self.since is None:
+            return None
+        return max(0.0, (time.time() if now is None else now) - self.since)
+
+    def describe(self, now: float | None = None) -> str:
+        """One line: ``pid N (user U, program P, command 'C', since HH:MM:SS, held for S s)``."""
+        if self.pid is None:
+            return "an unknown process"
+        parts = [f"user {self.user or '?'}"]
+        if self.program:
+            parts.append(f"program {self.program}")
+        if self.command:
+            parts.append(f"command '{self.command}'")
+        held = self.held_s(now)
+        if held is not None and self.since is not None:
+            since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.since))
+            parts.append(f"since {since}, {'held' if self.kind == 'ilcnc' else 'running'} for {_fmt_duration(held)}")
+        else:
+            parts.append("since unknown")
+        return f"pid {self.pid} ({', '.join(parts)})"
+
+
+def _fmt_duration(s: float) -> str:
+    if s < 120:
+        return f"{s:.0f} s"
+    if s < 7200:
+        return f"{s / 60:.0f} min"
+    return f"{s / 3600:.1f} h"
+
+
+def _user_of(uid: int) -> str:
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except (KeyError, OverflowError):
+        return str(uid)
+
+
+def _short(cmd: list[str] | None, n: int = 100) -> str | None:
+    if not cmd:
+        return None
+    text = " ".join(" ".join(cmd).split())
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def _process_start(pid: int) -> float | None:
+    """When process ``pid`` started, seconds since the epoch (from /proc)."""
+    try:
+        ticks = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[-1].split()[19])
+        btime = next(int(r.split()[1]) for r in Path("/proc/stat").read_text().splitlines() if r.startswith("btime "))
+    except (OSError, ValueError, IndexError, StopIteration):
+        return None
+    return btime + ticks / os.sysconf("SC_CLK_TCK")
+
+
+def _process_holder(pid: int, kind: str, program: str | None = None, since: float | None = None) -> LockHolder | None:
+    """A :class:`LockHolder` from what /proc says about ``pid`` (None when it is gone)."""
+    try:
+        uid = Path(f"/proc/{pid}").stat().st_uid
+    except OSError:
+        return None
+    return LockHolder(pid=pid, user=_user_of(uid), program=program, command=_short(_proc_cmdline(pid)),
+                      since=since if since is not None else (_process_start(pid) if kind != "ilcnc" else None),
+                      kind=kind)
+
+
+def _flock_pid(path: Path) -> int | None:
+    """The pid that holds a flock on ``path``, from /proc/locks (None when unknown or not held)."""
+    try:
+        st = path.stat()
+        rows = Path("/proc/locks").read_text().splitlines()
+    except OSError:
+        return None
+    dev = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    for row in rows:
+        cells = row.split()
+        if len(cells) >= 6 and cells[1] == "FLOCK" and cells[5] == dev and cells[4].isdigit():
+            return int(cells[4])  # blocked waiters are listed as '-> FLOCK ...' and do not match
+    return None
+
+
+def _read_record(path: Path) -> dict | None:
+    """The holder record in the lock file (its first line, JSON), or None. Retries a torn read."""
+    for _ in range(5):
+        try:
+            first = path.read_bytes()[:4096].split(b"\n", 1)[0]
+        except OSError:
+            return None
+        if not first.strip():
+            return None
+        try:
+            rec = json.loads(first)
+            return rec if isinstance(rec, dict) else None
+        except ValueError:
+            time.sleep(0.01)  # written while we read: read again
+    return None
+
+
+def _holder_of_lock() -> LockHolder:
+    """Who holds :data:`LOCK_PATH` (called when it is held): its record, else what /proc/locks and /proc say."""
+    rec = _read_record(LOCK_PATH)
+    locker = _flock_pid(LOCK_PATH)
+    if rec is not None:
+        with contextlib.suppress(KeyError, TypeError, ValueError):
+            pid = int(rec["pid"])
+            if (locker is None or locker == pid) and Path(f"/proc/{pid}").exists():
+                return LockHolder(pid=pid, user=rec.get("user"), program=rec.get("program"),
+                                  command=rec.get("command"), since=float(rec["since"]), kind="ilcnc")
+    if locker is not None:  # no record (an older ilcnc, or not written yet): what /proc says
+        h = _process_holder(locker, "ilcnc")
+        if h is not None:
+            return h
+    return LockHolder(pid=None)
+
+
+def _open_lock() -> int:
+    """Open :data:`LOCK_PATH` for the lock and its record (read-only if it is another user's and not writable)."""
+    try:
+        try:
+            return os.open(LOCK_PATH, os.O_RDWR)
+        except FileNotFoundError:
+            fd = os.open(LOCK_PATH, os.O_RDWR | os.O_CREAT, 0o666)
+            with contextlib.suppress(OSError):
+                os.fchmod(fd, 0o666)  # other users' runs must be able to take the lock and write their record
+            return fd
+        except PermissionError:
+            return os.open(LOCK_PATH, os.O_RDONLY)  # flock needs no write access; no record then
+    except OSError as exc:
+        raise InputError(LOCK_PATH, None, f"cannot open the LinuxCNC run lock: {exc.strerror}") from None
+
+
+def lock_holder() -> LockHolder | None:
+    """Who holds ilcnc's run lock :data:`LOCK_PATH` now, or None when it is free.
+
+    A lock this thread holds (:func:`run_lock`) is reported as held by this process.
+    """
+    own = _held.get(str(LOCK_PATH))
+    if own is not None:
+        return own[2]
+    try:
+        fd = os.open(LOCK_PATH, os.O_RDONLY)
+    except OSError:
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return _holder_of_lock()
+        return None
+    finally:
+        os.close(fd)
+
+
+#: Processes of a running LinuxCNC (``/proc/PID/comm``).
+LINUXCNC_PROCESSES = ("linuxcncsvr", "milltask", "rtapi_app")
+
+
+def _linuxcnc_pids() -> tuple[list[int], list[int]]:
+    """(launcher pids, pids of the LinuxCNC processes) alive now, zombies left out."""
+    launchers, procs = [], []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        pid = int(d.name)
+        try:
+            comm = (d / "comm").read_text().strip()
+        except OSError:
+            continue
+        is_proc = comm in LINUXCNC_PROCESSES
+        is_launcher = not is_proc and _is_launcher(_proc_cmdline(pid))
+        if (is_proc or is_launcher) and _state_of(pid) not in ("Z", "X", ""):
+            (procs if is_proc else launchers).append(pid)
+    return sorted(launchers), sorted(procs)
+
+
+def other_linuxcnc() -> LockHolder | None:
+    """A LinuxCNC running now (its launcher, else a ``linuxcncsvr``/``milltask``/``rtapi_app``), or None.
+
+    Called with ilcnc's run lock held this is a LinuxCNC that ilcnc did not
+    start (or the leftovers of one that crashed); ilcnc never stops it.
+    """
+    launchers, procs = _linuxcnc_pids()
+    for pid in launchers + procs:
+        h = _process_holder(pid, "linuxcnc")
+        if h is not None:
+            return h
+    return None
+
+
+_held: dict[str, tuple[int, int, LockHolder]] = {}  # lock path -> (fd, depth, record) held by this process
+_held_thread: dict[str, int] = {}
 
 
 @contextlib.contextmanager
-def _run_lock(timeout_s: float, program: Path) -> Iterator[None]:
-    try:
-        fd = os.open(LOCK_PATH, os.O_RDONLY | os.O_CREAT, 0o666)  # flock needs no write access
-    except OSError as exc:
-        raise InputError(LOCK_PATH, None, f"cannot open the LinuxCNC run lock: {exc.strerror}") from None
-    with contextlib.suppress(OSError):
-        os.fchmod(fd, 0o666)  # other users' runs must be able to take the lock too
+def run_lock(timeout_s: float = 0.0, program: str | Path | None = None,
+             on_wait: Callable[[str], None] | None = None) -> Iterator[LockHolder]:
+    """Hold ilcnc's machine-wide LinuxCNC run lock :data:`LOCK_PATH` (an ``flock``).
+
+    The holder writes a record into the lock file (one JSON line: pid, user,
+    program, command, since; readable by everyone) so that a waiting run can
+    say who it waits for. When the lock is held by another process, ``on_wait``
+    gets one line (who holds it, how long this call will wait) and the call
+    waits up to ``timeout_s`` (0: not at all); then it raises
+    :class:`LinuxCNCBusyError` naming the holder. Re-entrant within a thread:
+    a nested call (e.g. :func:`run_program` inside a test session that holds
+    the lock) only updates the record's program.
+    """
+    key = str(LOCK_PATH)
+    prog = str(program) if program is not None else None
+    if key in _held and _held_thread.get(key) == threading.get_ident():
+        fd, depth, rec = _held[key]
+        inner = LockHolder(pid=rec.pid, user=rec.user, program=prog or rec.program, command=rec.command,
+                           since=rec.since)
+        _held[key] = (fd, depth + 1, inner)
+        _write_record(fd, inner)
+        try:
+            yield inner
+        finally:
+            _held[key] = (fd, depth, rec)
+            _write_record(fd, rec)
+        return
+    fd = _open_lock()
+    locked = False
     try:
         end = time.monotonic() + timeout_s
+        told = False
         while True:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                locked = True
                 break
             except BlockingIOError:
-                if time.monotonic() > end:
-                    msg = f"another ilcnc LinuxCNC run held {LOCK_PATH} for {timeout_s:.0f} s"
-                    raise InputError(program, None, msg) from None
+                if time.monotonic() >= end:
+                    h = _holder_of_lock()
+                    how = (f"gave up after the lock timeout of {timeout_s:g} s" if timeout_s > 0
+                           else "not waiting (lock timeout 0)")
+                    raise LinuxCNCBusyError(program or LOCK_PATH,
+                                            f"another ilcnc LinuxCNC run holds {LOCK_PATH}: {h.describe()}; {how}",
+                                            h) from None
+                if not told and on_wait is not None:
+                    on_wait(f"waiting up to {_fmt_wait(timeout_s)} for the LinuxCNC run lock {LOCK_PATH}, "
+                            f"held by another ilcnc run: {_holder_of_lock().describe()}")
+                told = True
                 time.sleep(0.1)
-        yield
+        rec = LockHolder(pid=os.getpid(), user=_user_of(os.geteuid()), program=prog,
+                         command=_short(_proc_cmdline(os.getpid())), since=time.time())
+        _write_record(fd, rec)
+        _held[key] = (fd, 1, rec)
+        _held_thread[key] = threading.get_ident()
+        yield rec
     finally:
+        if locked:
+            _held.pop(key, None)
+            _held_thread.pop(key, None)
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, 0)  # no stale record once released
         os.close(fd)  # releases the lock
+
+
+def _fmt_wait(timeout_s: float) -> str:
+    return "forever" if math.isinf(timeout_s) else f"{timeout_s:g} s"
+
+
+def _write_record(fd: int, rec: LockHolder) -> None:
+    """Write the holder record into the lock file: one JSON line, one write (readers retry a torn read)."""
+    data = json.dumps({"pid": rec.pid, "user": rec.user, "program": rec.program, "command": rec.command,
+                       "since": rec.since}).encode() + b"\n"
+    with contextlib.suppress(OSError):  # a read-only lock fd (another user's file): no record
+        os.pwrite(fd, data, 0)
+        os.ftruncate(fd, len(data))
+
+
+def _wait_other_linuxcnc(program: Path, timeout_s: float, on_wait: Callable[[str], None] | None,
+                         end: float) -> None:
+    """Wait (until ``end``, monotonic) for a LinuxCNC that ilcnc did not start to go away; raise naming it."""
+    told: int | None = None
+    while True:
+        h = other_linuxcnc()
+        if h is None:
+            return
+        if time.monotonic() >= end:
+            how = (f"gave up after the lock timeout of {timeout_s:g} s" if timeout_s > 0
+                   else "not waiting (lock timeout 0)")
+            raise LinuxCNCBusyError(
+                program, f"another LinuxCNC is running, not started by ilcnc: {h.describe()}; "
+                f"ilcnc runs one instance at a time and does not stop someone else's; {how}", h)
+        if on_wait is not None and told != h.pid:
+            on_wait(f"waiting up to {_fmt_wait(max(0.0, end - time.monotonic()))} for another LinuxCNC "
+                    f"(not started by ilcnc) to end: {h.describe()}")
+        told = h.pid
+        time.sleep(0.5)
 
 
 def _tail(text: str, n: int = 6) -> str:
@@ -686,6 +1002,8 @@ def run_program(
     ini_overrides: Mapping[str, Mapping[str, object]] | None = None,
     keep_run_dir: bool = False,
     retry_low_queue: bool = True,
+    lock_timeout_s: float = DEFAULT_LOCK_TIMEOUT_S,
+    on_wait: Callable[[str], None] | None = None,
 ) -> RunResult:
     """Run a G-code program on the headless LinuxCNC simulation and return its log.
 
@@ -716,6 +1034,12 @@ def run_program(
     retry_low_queue : bool
         Repeat a time-scaled run whose motion queue ran low at a smaller k
         (default); when False, keep it and say so in ``messages``.
+    lock_timeout_s : float
+        How long to wait for the machine, s (>= 0; 0: do not wait; ``inf``: no limit): for another ilcnc run
+        holding :data:`LOCK_PATH`, then for a LinuxCNC that ilcnc did not start. Separate from ``timeout_s``.
+    on_wait : callable, optional
+        Gets one line when the run has to wait: who holds the machine (pid, user, program, since when) and
+        how long it will wait. ilcnc's library prints nothing; the command line prints it on stderr.
 
     Returns
     -------
@@ -727,8 +1051,10 @@ def run_program(
         LinuxCNC is not installed; the program or configuration is missing;
         LinuxCNC refused the program (its message, and the line); the run
         stopped on a following error (the message and the block that was
-        running); another LinuxCNC is running; the run timed out or LinuxCNC
-        failed to start.
+        running); the run timed out or LinuxCNC failed to start.
+    LinuxCNCBusyError
+        (an InputError) the machine was still busy after ``lock_timeout_s``: another ilcnc run held the lock,
+        or a LinuxCNC not started by ilcnc was running; the message names it.
     """
     program = Path(program_path)
     if not isinstance(time_scale, int) or isinstance(time_scale, bool) or not 1 <= time_scale <= MAX_TIME_SCALE:
@@ -736,6 +1062,8 @@ def run_program(
         raise InputError(program, None, msg)
     if not (settle_s >= 0 and math.isfinite(settle_s)):
         raise InputError(program, None, f"settle time must be >= 0 s, got {settle_s!r}")
+    if not (isinstance(lock_timeout_s, int | float) and lock_timeout_s >= 0):
+        raise InputError(program, None, f"lock timeout must be >= 0 s, got {lock_timeout_s!r}")
     why = linuxcnc_available()
     if why is not None:
         raise InputError(program, None, why)
@@ -791,14 +1119,13 @@ def run_program(
             ILCNC_TIMEOUT_LABEL=f"{timeout_s:g} s of machine time (--timeout; give a longer one for this program)",
         )
 
-        with _run_lock(timeout_s + _STARTUP_MARGIN_S, program):
-            _recover_previous(program)
+        busy_until = time.monotonic() + lock_timeout_s
+        with run_lock(lock_timeout_s, program, on_wait):
+            _recover_previous()
+            _wait_other_linuxcnc(program, lock_timeout_s, on_wait, busy_until)
             t0 = time.monotonic()
             with out_path.open("wb") as out:
-                proc = subprocess.Popen(
-                    ["linuxcnc", "-r", str(ini)], cwd=run_dir, env=env, stdin=subprocess.DEVNULL,
-                    stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-                )
+                proc = _launch(ini, run_dir, env, out)
             try:
                 with contextlib.suppress(OSError):  # best effort: lets the next run clean up if we die
                     STATE_PATH.write_text(json.dumps({"pid": proc.pid, "pgid": proc.pid, "run_dir": str(run_dir)}))
@@ -840,7 +1167,8 @@ def run_program(
             note = (f"time scale {time_scale}: the motion queue ran low ({low.get('queue')} blocks at line "
                     f"{low.get('motion_line')}) while blocks were still to come; repeated at time scale {k2}")
             again = run_program(program, config, log_dest, time_scale=k2, settle_s=settle_s, timeout_s=timeout_s,
-                                ini_overrides=ini_overrides, keep_run_dir=keep_run_dir, retry_low_queue=True)
+                                ini_overrides=ini_overrides, keep_run_dir=keep_run_dir, retry_low_queue=True,
+                                lock_timeout_s=lock_timeout_s, on_wait=on_wait)
             again.messages.insert(0, note)
             again.wall_s += wall
             return again
@@ -864,6 +1192,12 @@ def run_program(
     finally:
         if not keep_run_dir:
             shutil.rmtree(run_dir, ignore_errors=True)
+
+
+def _launch(ini: Path, run_dir: Path, env: dict[str, str], out) -> subprocess.Popen:  # type: ignore[no-untyped-def]
+    """Start ``linuxcnc -r INI`` in its own process group (called with the run lock held)."""
+    return subprocess.Popen(["linuxcnc", "-r", str(ini)], cwd=run_dir, env=env, stdin=subprocess.DEVNULL,
+                            stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
 
 
 def _lower_scale(k: int, period_ns: int) -> int:
