@@ -2,7 +2,7 @@
 
 Usage::
 
-    python bench/learn.py                                   # ../shared/samples/large/stellabee1.ngc
+    python bench/learn.py                                   # samples/third_party/large/stellabee1.ngc
     python bench/learn.py PROG --profile configs/x.yaml --iterations 2
     python bench/learn.py --check                           # exit 1 when the target is missed
 
@@ -44,7 +44,7 @@ def _peak_gb() -> float:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("program", nargs="?", default=str(ROOT.parent / "shared" / "samples" / "large" / "stellabee1.ngc"))
+    ap.add_argument("program", nargs="?", default=str(ROOT / "samples" / "third_party" / "large" / "stellabee1.ngc"))
     ap.add_argument("--profile", default=str(ROOT / "configs" / "example-mill.yaml"))
     ap.add_argument("--iterations", type=int, default=1)
     ap.add_argument("--check", action="store_true", help="exit 1 when the per-iteration target is missed")

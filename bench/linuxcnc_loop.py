@@ -16,8 +16,8 @@ predicts LinuxCNC). It prints the contour error (RMS, max) of every run, its cha
 iterations against issue 9's target (−60 % RMS), the fidelity against its targets (correlation ≥ 0.9,
 difference ≤ 20 % of the error), and the wall time of the LinuxCNC runs and of the learning steps.
 
-The default program is ``../shared/samples/gcode/KB-219 test.gcode`` (an insole, Sienci-Labs/gsender,
-GPL-3.0-only, see ../shared/samples/MANIFEST-gcode.tsv), run as a copy made LinuxCNC-ready: its grbl
+The default program is ``samples/third_party/gcode/KB-219 test.gcode`` (an insole, Sienci-Labs/gsender,
+GPL-3.0-only, see samples/MANIFEST.tsv), run as a copy made LinuxCNC-ready: its grbl
 homing line ``$H`` and its ``G10 L20 P1 X0 Y0 Z50`` (which would shift the work offset, while the log
 is in machine coordinates) become comments, and ``M2`` is appended (LinuxCNC refuses a file without a
 program end). Line numbers are kept. The copy is the drawing. ~12 min on the 2-core machine.
@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SAMPLE = ROOT.parent / "shared" / "samples" / "gcode" / "KB-219 test.gcode"
+SAMPLE = ROOT / "samples" / "third_party" / "gcode" / "KB-219 test.gcode"
 PROFILE = ROOT / "configs" / "linuxcnc-sim.yaml"
 TARGET_REDUCTION = 0.60
 TARGET_CORRELATION = 0.9

@@ -3,7 +3,7 @@
 
     python bench/parse.py [FILE] [--pygcode-lines N] [--repeat R] [--check]
 
-Measures, on FILE (default ../shared/samples/large/stellabee1.ngc, 169,220 lines):
+Measures, on FILE (default samples/third_party/large/stellabee1.ngc, 169,220 lines):
 
 * ilcnc: ``read_program(path)`` plus the command table (k, line, end point,
   feed), best of R runs (default 3);
@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_FILE = REPO.parent / "shared" / "samples" / "large" / "stellabee1.ngc"
+DEFAULT_FILE = REPO / "samples" / "third_party" / "large" / "stellabee1.ngc"
 TARGET_LINES_PER_S = 1_000_000
 TARGET_VS_PYGCODE = 30.0
 TARGET_VS_RS274 = 1.0

@@ -7,7 +7,7 @@ Usage (from the repository root)::
     python bench/scale.py --parts 50      # a smaller batch
     python bench/scale.py --check         # exit 1 when a target is missed
 
-The big program: ``../shared/samples/large/stellabee1.ngc`` (169,220 lines)
+The big program: ``samples/third_party/large/stellabee1.ngc`` (169,220 lines)
 repeated ``--copies`` times (default 6, ~1.0 M lines), the program end
 (``M2``/``M30``/``%``) of every copy but the last removed, written to a
 temporary folder. Every stage runs in a child process of its own (this
@@ -32,9 +32,11 @@ estimate exceeds the memory available now, the stage is not run
 extrapolated linearly per line -- labelled ``extrapolated``; a target judged
 on an extrapolation says so.
 
-The batch: the shipped samples of ``gcode/``, ``heidenhain/`` and
-``contour/`` are first learned once each (``configs/seed004-ward-sopdt.yaml``,
-1 iteration); those that cannot be learned (a reader error) or take more than
+The batch: the samples of ``gcode/``, ``heidenhain/`` and ``contour/`` under
+``--samples`` (default ``samples/third_party``; the figures below were measured
+with ``../shared/samples``, which adds 7 TEST-ONLY Heidenhain programs) are
+first learned once each (``configs/seed004-ward-sopdt.yaml``, 1 iteration);
+those that cannot be learned (a reader error) or take more than
 ``--max-part-s`` (3 s) are left out; the rest are copied round-robin under
 distinct names into a folder of ``--parts`` programs (default 200), learned
 by ``run_batch`` with 1 and with 2 workers into the same output folder (moved
@@ -173,7 +175,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-SAMPLES = REPO.parent / "shared" / "samples"
+SAMPLES = REPO / "samples" / "third_party"
 LARGEST = SAMPLES / "large" / "stellabee1.ngc"
 WARM_UP = REPO / "samples" / "own" / "star.ngc"
 BATCH_DIRS = ("gcode", "heidenhain", "contour")
@@ -277,13 +279,13 @@ def _cpu_s() -> float:
     return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 
 
-def _stage_batch(work: Path, profile: Path, parts: int, max_part_s: float) -> dict[str, Any]:
+def _stage_batch(work: Path, profile: Path, parts: int, max_part_s: float, samples: Path) -> dict[str, Any]:
     from ilcnc._threads import available_cores, threads_per_part
     from ilcnc.batch import BatchJob, jobs_from_path, learn_one, run_batch, write_summary
 
     probe_out = work / "probe"
     probe_out.mkdir(parents=True, exist_ok=True)
-    cands = [p for d in BATCH_DIRS for p in sorted((SAMPLES / d).iterdir()) if p.is_file()]
+    cands = [p for d in BATCH_DIRS for p in sorted((samples / d).iterdir()) if p.is_file()]
     learn_one(BatchJob(str(WARM_UP), str(profile), str(probe_out / "warm.ilc.ngc"), str(probe_out / "warm.state"), 1))
     probed = []
     for i, p in enumerate(cands):
@@ -346,7 +348,7 @@ def _run_stage(args: argparse.Namespace) -> int:
     elif args.stage == "learn":
         out = _stage_learn(Path(args.program), prof)
     elif args.stage == "batch":
-        out = _stage_batch(Path(args.program), prof, args.parts, args.max_part_s)
+        out = _stage_batch(Path(args.program), prof, args.parts, args.max_part_s, Path(args.samples))
     else:
         raise SystemExit(f"unknown stage {args.stage}")
     print("RESULT " + json.dumps(out))
@@ -536,7 +538,7 @@ def _batch(args: argparse.Namespace, work: Path, summary: list[tuple[str, str, s
     prof = Path(args.batch_profile)
     print(f"batch: {args.parts} parts, {prof.name}, 1 iteration (probe, workers=1, workers=2, workers=1 on one thread "
           "in one child process)")
-    r = _child("batch", work / "batch", prof, parts=args.parts, max_part_s=args.max_part_s)
+    r = _child("batch", work / "batch", prof, parts=args.parts, max_part_s=args.max_part_s, samples=args.samples)
     if r is None:
         summary.append(("batch", "-", "FAILED", False))
         return
@@ -587,6 +589,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--copies", type=int, default=6, help="copies of stellabee1 in the big program")
     ap.add_argument("--parts", type=int, default=200, help="parts in the batch")
     ap.add_argument("--max-part-s", type=float, default=3.0, help="leave out samples that take longer to learn")
+    ap.add_argument("--samples", default=str(SAMPLES),
+                    help="folder with the gcode/, heidenhain/ and contour/ programs of the batch (default "
+                         "samples/third_party; ../shared/samples adds the TEST-ONLY Heidenhain programs)")
     ap.add_argument("--skip-big", action="store_true", help="no big program (and no stellabee1 runs): the batch only")
     ap.add_argument("--skip-batch", action="store_true", help="the big program only")
     ap.add_argument("--keep", action="store_true", help="keep the temporary folder")

@@ -61,7 +61,7 @@ from ilcnc.plan import PlanLimits, plan_program  # noqa: E402
 from ilcnc.profile import load_profile  # noqa: E402
 from ilcnc.program import read_program  # noqa: E402
 
-LARGEST = REPO.parent / "shared" / "samples" / "large" / "stellabee1.ngc"
+LARGEST = REPO / "samples" / "third_party" / "large" / "stellabee1.ngc"
 WARM_UP = REPO / "samples" / "own" / "star.ngc"
 TARGET_WHOLE_S = 20.0
 

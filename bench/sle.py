@@ -43,11 +43,11 @@ from ilcnc.deflection import (  # noqa: E402
 from ilcnc.program import read_program  # noqa: E402
 
 TARGET_S = 10.0
-CONTOUR = ROOT.parent / "shared" / "samples" / "contour"
+CONTOUR = ROOT / "samples" / "third_party" / "contour"
 
 
 def largest_contour_sample() -> Path:
-    """The file under ../shared/samples/contour with the most G01 commands."""
+    """The file under samples/third_party/contour with the most G01 commands."""
     best, n_best = None, -1
     for p in sorted(CONTOUR.iterdir()):
         if not p.is_file() or p.suffix.lower() in (".tsv", ".md"):

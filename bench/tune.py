@@ -86,7 +86,7 @@ def main() -> int:
         from ilcnc.program import read_program
         from ilcnc.tune import check_lifted
 
-        prog = read_program(ROOT.parent / "shared" / "samples" / "gcode" / "jsdc.gcode")
+        prog = read_program(ROOT / "samples" / "third_party" / "gcode" / "jsdc.gcode")
         p4 = load_profile(ROOT / "configs" / "seed004-ward-sopdt.yaml")
         t0 = time.perf_counter()
         chk = check_lifted(prog, p4)

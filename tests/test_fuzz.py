@@ -1,6 +1,6 @@
 """Property-based robustness of the readers: mutated lines of real programs.
 
-Each example takes a real sample from ../shared/samples (a small one whole, or
+Each example takes a real sample from samples/third_party (a small one whole, or
 a window of a big one: its first 10 lines, 30 lines from anywhere and its last
 3 lines), mutates one to three lines (deleted characters, duplicated, swapped
 or deleted words, random bytes including NUL and non-ASCII, huge numbers,
@@ -47,7 +47,7 @@ from ilcnc.program import read_program
 from ilcnc.program.model import STYLE_LITERAL, looks_binary
 from ilcnc.program.rewrite import apply_corrections
 
-from .conftest import sample_files
+from .conftest import SAMPLES, TEST_ONLY, sample_files, shared_sample_reason
 
 EXAMPLES = 10_000
 # Per example; typical examples take a few milliseconds. A mutation can turn a loop of a sample into one
@@ -507,8 +507,19 @@ def test_an_endless_loop_is_refused_in_time(name: str) -> None:
 
 
 def test_the_samples_are_there() -> None:
-    assert len(GCODE_SAMPLES) >= 40 and len(HEIDENHAIN_SAMPLES) >= 10
-    assert any(s.big for s in GCODE_SAMPLES) and any(s.big for s in HEIDENHAIN_SAMPLES)
+    assert len(GCODE_SAMPLES) >= 40 and len(HEIDENHAIN_SAMPLES) >= 7
+    assert len(GCODE_SAMPLES) == sum(len(list((SAMPLES / d).iterdir())) for d in ("gcode", "contour", "interp"))
+    in_repository = [s for s in HEIDENHAIN_SAMPLES if s.path.is_relative_to(SAMPLES)]
+    assert len(in_repository) == 7
+    assert any(s.big for s in GCODE_SAMPLES) and any(s.big for s in in_repository)
+
+
+def test_the_test_only_samples_are_there() -> None:
+    """The Heidenhain fuzzing also mutates the 7 TEST-ONLY samples of ../shared (all 14, as before the copies)."""
+    test_only = sorted(s.path.name for s in HEIDENHAIN_SAMPLES if not s.path.is_relative_to(SAMPLES))
+    if test_only != sorted(TEST_ONLY["heidenhain"]):
+        pytest.skip(shared_sample_reason("heidenhain"))
+    assert len(HEIDENHAIN_SAMPLES) == 14
 
 
 def test_mutations_do_what_they_say() -> None:

@@ -32,10 +32,21 @@ from ilcnc.program.model import (
     Program,
 )
 
-REPO = Path(__file__).resolve().parents[1]
-SAMPLES = REPO.parent / "shared" / "samples" / "heidenhain"
-OWN = REPO / "samples" / "own"
-SAMPLE_FILES = sorted(SAMPLES.glob("*.h"))
+from .conftest import (
+    OWN,
+    SHARED_SAMPLES,
+    TEST_ONLY,
+    sample_files,
+    shared_marks,
+    shared_param,
+    shared_sample,
+    skip_without_shared,
+)
+from .conftest import SAMPLES as THIRD_PARTY
+
+SAMPLES = THIRD_PARTY / "heidenhain"  # the copies in the repository (samples/third_party/heidenhain)
+LK = TEST_ONLY["heidenhain"]  # TEST-ONLY: read from ../shared/samples/heidenhain, skipped without it
+SAMPLE_FILES = sample_files("heidenhain")  # the copies, and the TEST-ONLY files when ../shared is there
 OWN_FILES = sorted(OWN.glob("*.h"))
 CAM = ("apt_interface-glue_11.h", "apt_top-light-cover_11.h", "apt_teste-metrologia_12.h")
 
@@ -56,6 +67,35 @@ EXPECTED_UNSUPPORTED: dict[str, tuple[int, str, str] | None] = {
     "lk_SLII001.h": (24, "cycle 22 AUSRAEUMEN", "CYCL CALL"),
     "lk_zirkularnut-fraesen.h": (28, "depends on Q10", "L IX+Q2"),
 }
+
+
+def sample_path(name: str) -> Path:
+    """A Heidenhain sample: the copy in the repository, or a TEST-ONLY one in ../shared (skips without it)."""
+    return shared_sample("heidenhain", name) if name in LK else SAMPLES / name
+
+
+def sample_params(names, *, paths: bool = False) -> list:
+    """Parameters for ``names`` (their paths with ``paths``); a TEST-ONLY one skips, with the reason, without ../shared."""
+    out = []
+    for n in names:
+        if n not in LK:
+            out.append(pytest.param(SAMPLES / n if paths else n, id=n))
+        elif paths:
+            out.append(shared_param("heidenhain", n))
+        else:
+            out.append(pytest.param(n, id=n, marks=shared_marks("heidenhain", n)))
+    return out
+
+
+ALL_SAMPLES = sorted(EXPECTED_UNSUPPORTED)
+
+
+class _Samples(dict):
+    """The samples read once per module, on first use; a TEST-ONLY one skips the test without ../shared."""
+
+    def __missing__(self, name: str) -> Program:
+        self[name] = read(sample_path(name))
+        return self[name]
 
 
 def read(path: Path) -> Program:
@@ -84,8 +124,8 @@ def parse_word(text: str) -> float:
 @pytest.fixture(scope="module")
 def samples() -> dict[str, Program]:
     if not SAMPLES.is_dir():
-        pytest.fail(f"../shared/samples/heidenhain not found at {SAMPLES}")
-    return {p.name: read(p) for p in SAMPLE_FILES}
+        pytest.fail(f"samples/third_party/heidenhain not found at {SAMPLES}")
+    return _Samples()
 
 
 @pytest.fixture(scope="module")
@@ -97,17 +137,24 @@ def own() -> dict[str, Program]:
 # the samples
 # ---------------------------------------------------------------------------------------------
 def test_every_sample_is_listed():
-    assert sorted(p.name for p in SAMPLE_FILES) == sorted(EXPECTED_UNSUPPORTED)
+    assert sorted(p.name for p in SAMPLES.glob("*.h")) == sorted(set(EXPECTED_UNSUPPORTED) - set(LK))
+    assert set(LK) < set(EXPECTED_UNSUPPORTED)
     assert {p.name for p in OWN_FILES} >= {"square.h", "square-incremental.h", "circle.h", "star.h", "contour.h",
                                           "params.h"}
 
 
-@pytest.mark.parametrize("name", sorted(EXPECTED_UNSUPPORTED))
+def test_every_test_only_sample_is_listed():
+    skip_without_shared("heidenhain")
+    assert sorted(p.name for p in (SHARED_SAMPLES / "heidenhain").glob("*.h")) == sorted(EXPECTED_UNSUPPORTED)
+    assert sorted(p.name for p in SAMPLE_FILES) == sorted(EXPECTED_UNSUPPORTED)
+
+
+@pytest.mark.parametrize("name", sample_params(ALL_SAMPLES))
 def test_sample_reads_and_stops_where_expected(samples, name):
     p = samples[name]
     assert p.dialect == "heidenhain"
     assert p.units == "mm"
-    assert p.text.encode("latin-1") == (SAMPLES / name).read_bytes()
+    assert p.text.encode("latin-1") == sample_path(name).read_bytes()
     expected = EXPECTED_UNSUPPORTED[name]
     if expected is None:
         assert p.unsupported is None
@@ -123,7 +170,7 @@ def test_sample_reads_and_stops_where_expected(samples, name):
         p.require_complete()
 
 
-@pytest.mark.parametrize("path", SAMPLE_FILES + OWN_FILES, ids=lambda p: p.name)
+@pytest.mark.parametrize("path", [*sample_params(ALL_SAMPLES, paths=True), *OWN_FILES], ids=lambda p: p.name)
 def test_text_is_the_file_byte_for_byte(path):
     p = read(path)
     assert p.text.encode("latin-1") == path.read_bytes()
@@ -132,8 +179,11 @@ def test_text_is_the_file_byte_for_byte(path):
 
 def test_program_names(samples):
     assert samples["apt_interface-glue_11.h"].name == "11"
-    assert samples["lk_zirkularnut-fraesen.h"].name == "Gleichlaufnut"
     assert samples["apt_PROFILE.h"].name == "PROFILE"
+
+
+def test_program_name_of_a_test_only_sample(samples):
+    assert samples["lk_zirkularnut-fraesen.h"].name == "Gleichlaufnut"
 
 
 def test_mismatched_end_pgm_name_is_a_warning(samples):
@@ -206,6 +256,9 @@ def test_cycle_calls_of_old_cycles_are_warnings(samples):
     assert p.unsupported is None
     assert p.n_commands == 9
     assert any("cycle 5 CIRCULAR POCKET" in w and "8 time(s)" in w for w in p.warnings)
+
+
+def test_cycle_calls_of_old_cycles_in_cam_output_are_warnings(samples):
     glue = samples["apt_interface-glue_11.h"]
     assert any("cycle 1 PECKING" in w and "6 time(s)" in w for w in glue.warnings)
 
@@ -256,8 +309,12 @@ def test_krivka_loops_are_repeated(samples):
     assert mv.end_mm[-1].tolist() == [0.0, 0.0, 5.0]
 
 
-def test_spans_of_commands_parse_to_the_values(samples, own):
-    for p in list(samples.values()) + list(own.values()):
+OWN_NAMES = [p.name for p in OWN_FILES]
+
+
+@pytest.mark.parametrize("name", [*sample_params(ALL_SAMPLES), *OWN_NAMES])
+def test_spans_of_commands_parse_to_the_values(samples, own, name):
+    for p in [own[name] if name in own else samples[name]]:
         mv = p.moves
         for i in p.command_moves:
             assert mv.insert_at[i] >= 0
@@ -280,8 +337,9 @@ def test_spans_of_commands_parse_to_the_values(samples, own):
                 assert mv.word_decimals[i, a] == len(frac)
 
 
-def test_moves_are_continuous(samples, own):
-    for p in list(samples.values()) + list(own.values()):
+@pytest.mark.parametrize("name", [*sample_params(ALL_SAMPLES), *OWN_NAMES])
+def test_moves_are_continuous(samples, own, name):
+    for p in [own[name] if name in own else samples[name]]:
         mv = p.moves
         if len(mv) > 1:
             assert np.allclose(mv.start_mm[1:], mv.end_mm[:-1], atol=1e-9), p.path.name
@@ -326,6 +384,9 @@ def test_incremental_sample_moves(samples):
     assert len(mv) == 1 and mv.kind[0] == MOVE_RAPID
     assert mv.end_mm[0].tolist() == [0.0, 0.0, 20.0]
     assert mv.word_incremental[0, 2]
+
+
+def test_incremental_parametric_sample_moves(samples):
     z = samples["lk_zirkularnut-fraesen.h"].moves
     assert z.end_mm.tolist() == [[0, 0, 0], [0, 0, 10], [0, 0, -20]]
     assert z.flags[2] & FLAG_PARAMETRIC and z.feed_mm_min[2] == 5500.0
@@ -709,10 +770,17 @@ def test_formulas_nested_too_deeply_or_too_long():
         read_text(pgm(nested_signs))
 
 
-def test_fuzzed_samples_raise_only_program_errors():
+FUZZ_SOURCES = ("apt_CUT.h", "apt_PROFILE.h", "lk_7025.h", "lk_Krivka.h", "jstjst_Plan.h", "lk_BewegBlv.h", "lk_SLII001.h")
+
+
+@pytest.mark.parametrize("names", [
+    # the samples in the repository only, and all of them (the TEST-ONLY ones from ../shared: skips without it)
+    pytest.param(tuple(n for n in FUZZ_SOURCES if n not in LK), id="repository"),
+    pytest.param(FUZZ_SOURCES, id="with-test-only"),
+])
+def test_fuzzed_samples_raise_only_program_errors(names):
     rng = random.Random(20240601)
-    sources = [p.read_bytes() for p in OWN_FILES] + [(SAMPLES / n).read_bytes() for n in (
-        "apt_CUT.h", "apt_PROFILE.h", "lk_7025.h", "lk_Krivka.h", "jstjst_Plan.h", "lk_BewegBlv.h", "lk_SLII001.h")]
+    sources = [p.read_bytes() for p in OWN_FILES] + [sample_path(n).read_bytes() for n in names]
     alphabet = b"0123456789+-.,;~ \r\nLXYZIRFMQCPADT()=*/\"\x00"
     for _ in range(400):
         data = bytearray(rng.choice(sources))
@@ -790,7 +858,7 @@ def test_round_trip_own(own, name):
     _assert_same_path(p, q, 3)
 
 
-@pytest.mark.parametrize("name", [*CAM, "lk_668.h", "lk_BewegBlv.h"])
+@pytest.mark.parametrize("name", sample_params([*CAM, "lk_668.h", "lk_BewegBlv.h"]))
 def test_round_trip_samples(samples, name):
     p = samples[name]
     q, _text = _round_trip(p)

@@ -27,7 +27,7 @@ from ilcnc.program.model import MOVE_RAPID
 from tests.conftest import REPO, SAMPLES
 
 CONFIGS = REPO / "configs"
-JSDC = SAMPLES / "gcode" / "jsdc.gcode"  # jscut engraving: 2381 G01 commands, no arcs (MIT, see MANIFEST-gcode.tsv)
+JSDC = SAMPLES / "gcode" / "jsdc.gcode"  # jscut engraving: 2381 G01 commands, no arcs (MIT, see samples/MANIFEST.tsv)
 
 
 def _profile(name: str, **learning: object):

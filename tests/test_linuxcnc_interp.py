@@ -1,7 +1,7 @@
 """ilcnc's G-code reader against LinuxCNC's own interpreter, sample by sample.
 
 Acceptance: ``inspect --moves`` on the LinuxCNC programs agrees with LinuxCNC's
-interpreter. For every G-code sample in ``../shared/samples/{gcode,contour,interp,large}``
+interpreter. For every G-code sample in ``samples/third_party/{gcode,contour,interp,large}``
 LinuxCNC's interpreter is run and every straight feed (end point and source
 line) is compared with ours, in the program frame (``end_mm - offset_mm``:
 LinuxCNC reports work coordinates, offsets not applied):

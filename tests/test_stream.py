@@ -26,12 +26,11 @@ from ilcnc.profile import load_profile
 from ilcnc.program import read_program
 from ilcnc.simulate import simulate_program
 from ilcnc.stream import simulate_streamed, stream_unsupported
-from tests.conftest import REPO, SAMPLES
+from tests.conftest import REPO, SAMPLES, shared_param
 
 CONFIGS = REPO / "configs"
-JSDC = SAMPLES / "gcode" / "jsdc.gcode"  # jscut engraving, 2381 G01 (MIT, MANIFEST-gcode.tsv)
-CDS = SAMPLES / "gcode" / "cds.ngc"  # many rapids between short cuts (MANIFEST-gcode.tsv)
-HEIDENHAIN = SAMPLES / "heidenhain" / "lk_700.h"
+JSDC = SAMPLES / "gcode" / "jsdc.gcode"  # jscut engraving, 2381 G01 (MIT, samples/MANIFEST.tsv)
+CDS = SAMPLES / "gcode" / "cds.ngc"  # many rapids between short cuts (samples/MANIFEST.tsv)
 
 
 def _concat(chunks, name):
@@ -43,7 +42,7 @@ def _concat(chunks, name):
     (JSDC, "linuxcnc-sim.yaml", 5_000),        # LinuxCNC's planner: planned whole, handed out in chunks
     (JSDC, "seed004-ward-sopdt.yaml", 2_048),
     (CDS, "example-mill.yaml", 3_000),          # 350 groups: short ones whole, stand-stills across seams
-    (HEIDENHAIN, "example-mill.yaml", 4_096),
+    shared_param("heidenhain", "lk_700.h", "example-mill.yaml", 4_096),  # TEST-ONLY: ../shared
 ])
 def test_chunks_are_the_planned_reference(program, profile, chunk) -> None:
     prog = read_program(program)

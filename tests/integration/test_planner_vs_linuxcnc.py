@@ -17,9 +17,7 @@ import pytest
 from ilcnc.contour import PathGeometry, contour_error, guess_hints
 from ilcnc.plan import PlanLimits, plan_moves
 from ilcnc.program import read_program
-
-REPO = Path(__file__).resolve().parents[2]
-SAMPLES = REPO.parent / "shared" / "samples"
+from tests.conftest import REPO, SAMPLES
 
 pytestmark = [
     pytest.mark.linuxcnc,
