@@ -32,9 +32,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ilcnc.profile import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
 
-__all__ = ["MOVE_AIR", "MOVE_CUT", "MOVE_NOT_FED", "CuttingRule", "air_commands", "cutting_rule", "move_classes"]
+__all__ = ["MOVE_AIR", "MOVE_CUT", "MOVE_NOT_FED", "CuttingRule", "air_command_mask", "air_commands", "cutting_rule",
+           "move_classes", "profile_cutting_rule", "profile_move_classes"]
 
 #: Move classes (:func:`move_classes`): a rapid (no figure), a cutting feed move, a feed move in the air.
 MOVE_NOT_FED = 0
@@ -117,3 +119,23 @@ def move_classes(program: Program, rule: CuttingRule, *, resolution_mm: float = 
 def air_commands(program: Program, classes: NDArray[np.int8]) -> NDArray[np.bool_]:
     """Which G01 commands k are air moves, shape (N,)."""
     return classes[program.command_moves] == MOVE_AIR
+
+
+def profile_cutting_rule(program: Program, profile: MachineProfile) -> CuttingRule:
+    """:func:`cutting_rule` with the profile's ``cutting.top_z_mm`` and resolution (``--cutting-below-z`` reaches it
+    as the profile's value: the CLI replaces that key)."""
+    cut = profile.cutting
+    given = cut.top_z_mm if cut.top_z_from != "option" else None
+    option = cut.top_z_mm if cut.top_z_from == "option" else None
+    return cutting_rule(program, option_z_mm=option, profile_z_mm=given, resolution_mm=profile.machine.resolution_mm)
+
+
+def profile_move_classes(program: Program, profile: MachineProfile) -> tuple[CuttingRule, NDArray[np.int8]]:
+    """The profile's rule for ``program`` and the class of every move under it."""
+    rule = profile_cutting_rule(program, profile)
+    return rule, move_classes(program, rule, resolution_mm=profile.machine.resolution_mm)
+
+
+def air_command_mask(program: Program, profile: MachineProfile) -> NDArray[np.bool_]:
+    """Commands in the air under the profile's rule, shape (K,)."""
+    return air_commands(program, profile_move_classes(program, profile)[1])

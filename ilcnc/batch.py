@@ -61,6 +61,9 @@ class PartResult:
     clipped: int = 0
     error: str | None = None
     output: str | None = None
+    #: the cutting moves' max before / after and the air moves' max after, mm; cycle time before / after, s
+    max_error_mm: dict[str, float | None] = field(default_factory=lambda: {"before": None, "after": None, "air_after": None})
+    cycle_time_s: dict[str, float | None] = field(default_factory=lambda: {"before": None, "after": None})
 
     @property
     def failed(self) -> bool:
@@ -151,6 +154,11 @@ def learn_one(job: BatchJob) -> PartResult:
     before = its[0]["contour_error_mm"]["rms"] if its and its[0]["contour_error_mm"] else None
     kept = [it for it in its if it.get("kept") and it["contour_error_mm"]]
     after = min(it["contour_error_mm"]["rms"] for it in kept) if kept else None
+    best = min(kept, key=lambda it: it["contour_error_mm"]["rms"]) if kept else None
+    maxes = {"before": its[0]["contour_error_mm"]["max"] if before is not None else None,
+             "after": best["contour_error_mm"]["max"] if best else None,
+             "air_after": (best.get("air_error_mm") or {}).get("max") if best else None}
+    cycle = {"before": its[0].get("cycle_time_s") if its else None, "after": best.get("cycle_time_s") if best else None}
     status = oc.status
     if status == "diverged" and before is not None and after is not None and after >= before:
         status = "regressed"
@@ -158,7 +166,7 @@ def learn_one(job: BatchJob) -> PartResult:
 
     n = read_program(job.program).n_commands
     return PartResult(job.program, job.profile, status, n, len(its) - 1, {"before": before, "after": after},
-                      len(oc.clips), None, str(oc.output) if oc.output else None)
+                      len(oc.clips), None, str(oc.output) if oc.output else None, maxes, cycle)
 
 
 def run_batch(
@@ -298,13 +306,19 @@ def summary_csv(results: Iterable[PartResult]) -> str:
     """The summary table as CSV text."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
+    # the figures are the cutting moves' (ilcnc.air); columns after "error" were added later (kept at the end
+    # so that scripts reading the first ten keep working)
     w.writerow(["program", "profile", "status", "g01_commands", "iterations", "rms_before_mm", "rms_after_mm", "clipped",
-                "output", "error"])
+                "output", "error", "max_before_mm", "max_after_mm", "air_max_after_mm", "cycle_before_s", "cycle_after_s"])
+
+    def num(x: float | None, fmt: str = ".6f") -> str:
+        return "" if x is None else format(x, fmt)
+
     for r in results:
-        ce = r.contour_error_mm
-        w.writerow([r.program, r.profile, r.status, r.g01_commands, r.iterations,
-                    "" if ce["before"] is None else f"{ce['before']:.6f}", "" if ce["after"] is None else f"{ce['after']:.6f}",
-                    r.clipped, r.output or "", r.error or ""])
+        ce, mx, cy = r.contour_error_mm, r.max_error_mm, r.cycle_time_s
+        w.writerow([r.program, r.profile, r.status, r.g01_commands, r.iterations, num(ce["before"]), num(ce["after"]),
+                    r.clipped, r.output or "", r.error or "", num(mx["before"]), num(mx["after"]), num(mx["air_after"]),
+                    num(cy["before"], ".3f"), num(cy["after"], ".3f")])
     return buf.getvalue()
 
 

@@ -125,6 +125,11 @@ def export(
                f"{result.edits} numbers rewritten)")
 
 
+_CUTTING_BELOW_Z_HELP = ("Stock top, mm in program coordinates: feed moves entirely above it are air moves, reported"
+                         " apart and not corrected (default: the profile's cutting.top_z_mm, else work Z0 where the"
+                         " program cuts below it).")
+
+
 @app.command()
 def simulate(
     program: Annotated[Path, typer.Argument(help="Part program to run on the virtual CNC.")],
@@ -148,6 +153,7 @@ def simulate(
     log_units: Annotated[str, typer.Option("--log-units", help="Unit of --compare's positions: mm or inch.")] = "mm",
     log_columns: Annotated[str | None, typer.Option("--log-columns", help="With --compare: " + _LOG_COLUMNS_HELP)] = None,
     log_offset: Annotated[str | None, typer.Option("--log-offset", help="With --compare: " + _LOG_OFFSET_HELP)] = None,
+    cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Run PROGRAM on the virtual CNC: planned reference, drive models, contour error."""
@@ -165,7 +171,7 @@ def simulate(
         _compare(program, profile, compare, log_format, log_units, log_columns, _parse_offset(log_offset), as_json)
         return
     try:
-        prof = load_profile(profile)
+        prof = load_profile(profile).with_cutting_top(cutting_below_z)
         prog = read_program(program, default_units=prof.machine.units)
         orig = read_program(against, default_units=prof.machine.units) if against is not None else None
         console = _console()
@@ -286,7 +292,10 @@ def _print_simulation(result, prog, console, out: Path | None) -> None:
     t.add_row("samples", f"{result.n_samples} at {result.period_s * 1e3:g} ms")
     t.add_row("cycle time (s)", f"{result.cycle_time_s:.2f}")
     for key in ("max", "mean", "rms"):
-        t.add_row(f"contour error {key} (µm)", f"{result.stats[key] * 1e3:.2f}")
+        t.add_row(f"cutting moves: contour error {key} (µm)", f"{result.stats[key] * 1e3:.2f}")
+    air = result.air_stats
+    t.add_row("air moves: max / RMS (µm)", f"{air['max'] * 1e3:.2f} / {air['rms'] * 1e3:.2f}")
+    t.add_row("air moves are", result.cutting.describe())
     worst = result.worst(prog)
     t.add_row("worst command", f"k={worst['k']} (line {worst['line']})")
     for name, st in result.shares.items():
@@ -332,6 +341,7 @@ def learn(
     force: Annotated[
         bool, typer.Option("--force", help="Virtual learning: replace an earlier run's OUT and state (never an input).")
     ] = False,
+    cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Learn corrections of the G01 end points and write the compensated program.
@@ -345,7 +355,8 @@ def learn(
     _check_log_options(log_format, log_units)
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
                        log_period_s=log_period, points_reach_mm=points_reach, log_columns=log_columns,
-                       log_offset=_parse_offset(log_offset), force=force)
+                       log_offset=_parse_offset(log_offset), force=force,
+                       cutting_below_z_mm=cutting_below_z)
     console = _console()
     try:
         if as_json or log is not None or points is not None:
@@ -377,17 +388,24 @@ def _learn_with_progress(learn_part, req, console):
 def _print_learning(outcome, console) -> None:
     from rich.table import Table
 
-    t = Table(title=f"learning: {outcome.program.name} ({outcome.mode})")
-    for col in ("iteration", "max (µm)", "mean (µm)", "RMS (µm)", "clipped", "kept"):
+    t = Table(title=f"learning: {outcome.program.name} ({outcome.mode}): cutting moves' contour error")
+    for col in ("iteration", "max (µm)", "mean (µm)", "RMS (µm)", "air max (µm)", "cycle (s)", "clipped", "kept"):
         t.add_column(col, justify="right")
     for it in outcome.iterations:
         ce = it.get("contour_error_mm")
         if ce is None:
-            t.add_row(str(it["iteration"]), "-", "-", "-", str(it["clipped"]), "waiting for a measurement")
+            t.add_row(str(it["iteration"]), "-", "-", "-", "-", "-", str(it["clipped"]), "waiting for a measurement")
             continue
+        air = it.get("air_error_mm")
+        cyc = it.get("cycle_time_s")
         t.add_row(str(it["iteration"]), f"{ce['max'] * 1e3:.2f}", f"{ce['mean'] * 1e3:.2f}", f"{ce['rms'] * 1e3:.2f}",
+                  "-" if air is None else f"{air['max'] * 1e3:.2f}", "-" if cyc is None else f"{cyc:.2f}",
                   str(it["clipped"]), "yes" if it["kept"] else "no")
     console.print(t)
+    if outcome.cutting_rule:
+        console.print(f"air moves: {outcome.cutting_rule}")
+    if outcome.air_commands:
+        console.print(f"{outcome.air_commands} G01 commands in the air are kept as programmed (learning.air_moves: keep)")
     for c in outcome.clips[:20]:
         console.print(f"clipped: k={c.k} line {c.line} {c.axis.upper()} {c.wanted_mm:+.4f} → {c.applied_mm:+.4f} mm")
     if len(outcome.clips) > 20:
@@ -536,14 +554,15 @@ def check(
     profile: Annotated[Path, typer.Option("--profile", help="Machine profile YAML.")],
     max_error: Annotated[float, typer.Option("--max-error", min=0.0, help="Largest allowed contour error, mm.")],
     max_rms: Annotated[float | None, typer.Option("--max-rms", min=0.0, help="Largest allowed RMS contour error, mm.")] = None,
+    cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Exit 1 when the simulated contour error of PROGRAM exceeds a threshold (a CI regression gate)."""
+    """Exit 1 when the simulated contour error of PROGRAM's cutting moves exceeds a threshold (a CI regression gate)."""
     from ilcnc.profile import load_profile
     from ilcnc.program import read_program
 
     try:
-        prof = load_profile(profile)
+        prof = load_profile(profile).with_cutting_top(cutting_below_z)
         prog = read_program(program, default_units=prof.machine.units)
         result = _simulate(prog, prof, None, False)
     except IlcncError as exc:
@@ -551,10 +570,13 @@ def check(
     st = result.stats
     worst = result.worst(prog)
     over = []
+    if result.worst_sample < 0:
+        over.append(f"no cutting move: {result.cutting.describe()}; nothing to judge")
     if st["max"] > max_error:
-        over.append(f"max contour error {st['max']:.4f} mm > {max_error:g} mm (k={worst['k']}, line {worst['line']})")
+        over.append(f"cutting moves' max contour error {st['max']:.4f} mm > {max_error:g} mm (k={worst['k']}, line"
+                    f" {worst['line']})")
     if max_rms is not None and st["rms"] > max_rms:
-        over.append(f"RMS contour error {st['rms']:.4f} mm > {max_rms:g} mm")
+        over.append(f"cutting moves' RMS contour error {st['rms']:.4f} mm > {max_rms:g} mm")
     if as_json:
         out = result.to_json(prog)
         out.update({"max_error_mm": max_error, "max_rms_mm": max_rms, "passed": not over})
@@ -562,7 +584,9 @@ def check(
     elif over:
         typer.echo(f"error: {program}:{worst['line']}: " + "; ".join(over), err=True)
     else:
-        typer.echo(f"ok: {program.name}: max {st['max']:.4f} mm <= {max_error:g} mm, RMS {st['rms']:.4f} mm")
+        air = result.air_stats
+        typer.echo(f"ok: {program.name}: cutting moves max {st['max']:.4f} mm <= {max_error:g} mm, RMS {st['rms']:.4f} mm"
+                   f" (air moves apart: max {air['max']:.4f} mm; {result.cutting.describe()})")
     if over:
         raise typer.Exit(1)
 
@@ -604,8 +628,9 @@ def batch(
             def done(r) -> None:
                 bar.advance(task)
                 ce = r.contour_error_mm
-                fig = (f"{ce['before'] * 1e3:.2f} -> {ce['after'] * 1e3:.2f} µm RMS"
-                       if ce["before"] is not None and ce["after"] is not None else "")
+                mx = r.max_error_mm
+                fig = (f"cutting max {mx['before'] * 1e3:.2f} -> {mx['after'] * 1e3:.2f} µm, RMS {ce['before'] * 1e3:.2f} ->"
+                       f" {ce['after'] * 1e3:.2f} µm" if ce["before"] is not None and ce["after"] is not None else "")
                 bar.console.print(f"{r.status:>14}  {Path(r.program).name}  {Path(r.profile).name}  {fig}"
                                   + (f"  {r.error}" if r.error else ""))
 
@@ -626,14 +651,18 @@ def batch(
 def _print_batch(results, console, out: Path) -> None:
     from rich.table import Table
 
-    t = Table(title=f"batch: {len(results)} parts")
-    for col in ("part", "profile", "commands", "iterations", "RMS before (µm)", "RMS after (µm)", "clipped", "status"):
+    t = Table(title=f"batch: {len(results)} parts (cutting moves' contour error)")
+    for col in ("part", "profile", "commands", "iterations", "max before (µm)", "max after (µm)", "RMS before (µm)",
+                "RMS after (µm)", "clipped", "status"):
         t.add_column(col)
+
+    def um(x) -> str:
+        return "-" if x is None else f"{x * 1e3:.2f}"
+
     for r in results:
-        ce = r.contour_error_mm
-        t.add_row(Path(r.program).name, Path(r.profile).name, str(r.g01_commands), str(r.iterations),
-                  "-" if ce["before"] is None else f"{ce['before'] * 1e3:.2f}",
-                  "-" if ce["after"] is None else f"{ce['after'] * 1e3:.2f}", str(r.clipped), r.status)
+        ce, mx = r.contour_error_mm, r.max_error_mm
+        t.add_row(Path(r.program).name, Path(r.profile).name, str(r.g01_commands), str(r.iterations), um(mx["before"]),
+                  um(mx["after"]), um(ce["before"]), um(ce["after"]), str(r.clipped), r.status)
     console.print(t)
     console.print(f"summary: {out / 'summary.csv'}")
 

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ilcnc.air import CuttingRule, air_command_mask, profile_cutting_rule
 from ilcnc.command_error import CommandSignal, error_kind, measurement_gate_mm, signal_of_simulation
 from ilcnc.laws import AXES, LearningLaw, cut_runs, make_law
 from ilcnc.profile import MachineProfile
@@ -351,7 +352,8 @@ class IterationRecord:
     iteration : int
         0 for the uncompensated program.
     stats : dict
-        ``max``, ``mean``, ``rms`` contour error against the original drawing, mm.
+        ``max``, ``mean``, ``rms`` contour error of the cutting moves against the original drawing, mm
+        (:mod:`ilcnc.air`; the guard judges these).
     corrections_mm : ndarray (K, 3)
         Correction ``U`` of the program of this iteration, mm.
     signal : CommandSignal or None
@@ -371,6 +373,10 @@ class IterationRecord:
     shares : dict
         Each error source's ``max`` / ``mean`` / ``rms``, mm, when geometric or
         cutting errors are on (``SimulationResult.shares``).
+    air_stats : dict or None
+        The air moves' ``max`` / ``mean`` / ``rms``, mm (reported apart, never judged).
+    cycle_time_s : float or None
+        Cycle time of this iteration's program, s (a part is judged by its error without longer machining).
     """
 
     iteration: int
@@ -384,10 +390,16 @@ class IterationRecord:
     run: Any = None
     timings_s: dict[str, float] = field(default_factory=dict)
     shares: dict[str, dict[str, float]] = field(default_factory=dict)
+    air_stats: dict[str, float] | None = None
+    cycle_time_s: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         out = {"iteration": self.iteration, "contour_error_mm": {k: self.stats[k] for k in ("max", "mean", "rms")},
                "clipped": len(self.clipped), "kept": self.kept, "gain_scale": self.gain_scale}
+        if self.air_stats is not None:
+            out["air_error_mm"] = dict(self.air_stats)
+        if self.cycle_time_s is not None:
+            out["cycle_time_s"] = self.cycle_time_s
         if self.shares:
             out["error_shares_mm"] = self.shares
         return out
@@ -410,7 +422,11 @@ class LearnResult:
     best : int
         Index in :attr:`iterations` of the best kept iteration (the output).
     frozen : int
-        Commands never corrected (see :data:`FROZEN_FLAGS`).
+        Commands never corrected (see :data:`FROZEN_FLAGS`; air commands apart).
+    air_commands : int
+        Commands in the air kept as programmed (``learning.air_moves: keep``).
+    cutting : CuttingRule or None
+        The rule that told cutting from air moves (:mod:`ilcnc.air`).
     """
 
     program: Program
@@ -419,6 +435,8 @@ class LearnResult:
     message: str
     best: int
     frozen: int = 0
+    air_commands: int = 0
+    cutting: CuttingRule | None = None
 
     @property
     def best_record(self) -> IterationRecord:
@@ -444,6 +462,8 @@ class LearnResult:
             "message": self.message,
             "best_iteration": self.iterations[self.best].iteration,
             "frozen_commands": self.frozen,
+            "air_commands": self.air_commands,
+            "cutting_rule": None if self.cutting is None else self.cutting.to_json(),
         }
 
 
@@ -490,7 +510,11 @@ class Learner:
     def for_program(cls, program: Program, profile: MachineProfile, law: LearningLaw | None = None) -> Learner:
         sec = profile.learning
         law = law if law is not None else make_law(profile, program)
-        shaper = UpdateShaper(cut_runs(program), correctable_commands(program), sec.lead_commands, sec.q_filter_hz,
+        correctable = correctable_commands(program)
+        air = air_command_mask(program, profile)
+        if sec.air_moves == "keep":
+            correctable = correctable & ~air
+        shaper = UpdateShaper(cut_runs(program), correctable, sec.lead_commands, sec.q_filter_hz,
                               profile.machine.servo_period_s)
         sel, geo = arc_start_constraint(program)
         cm = program.command_moves
@@ -707,7 +731,10 @@ def learn_virtual(
     n_iter = profile.learning.iterations if iterations is None else int(iterations)
     kind = error_kind(profile)
     learner = Learner.for_program(program, profile, law)
-    frozen = int(np.count_nonzero(~learner.shaper.correctable))
+    air = air_command_mask(program, profile) if profile.learning.air_moves == "keep" else np.zeros(program.n_commands, bool)
+    frozen = int(np.count_nonzero(~learner.shaper.correctable & ~air))
+    n_air = int(np.count_nonzero(air & correctable_commands(program)))
+    rule = profile_cutting_rule(program, profile)
 
     sources = ErrorSources.from_profile(profile)  # map, FRF and stock files read once for all runs
 
@@ -740,7 +767,8 @@ def learn_virtual(
         text0, prog0 = program.text, program
     sim0, sig0, tim0 = run(prog0, 0)
     records = [IterationRecord(first_iteration, dict(sim0.stats), u0, sig0, [], True, 1.0, text0,
-                               sim0 if keep_runs else None, tim0, dict(sim0.shares))]
+                               sim0 if keep_runs else None, tim0, dict(sim0.shares), dict(sim0.air_stats),
+                               float(sim0.cycle_time_s))]
     if on_record:
         on_record(records[0])
     stats0 = records[0].stats
@@ -754,9 +782,10 @@ def learn_virtual(
     if stats0["max"] <= profile.learning.stop_tolerance_mm:
         return LearnResult(program, records, "converged",
                            f"max contour error {stats0['max'] * 1e3:.2f} µm is already within the stop tolerance",
-                           0, frozen)
+                           0, frozen, n_air, rule)
     if k == 0 or not sig0.valid.any():
-        return LearnResult(program, records, "stopped", "the program has no G01 command to correct", 0, frozen)
+        return LearnResult(program, records, "stopped", "the program has no G01 command to correct", 0, frozen, n_air,
+                           rule)
     it = 0
     while it < n_iter:
         it += 1
@@ -775,7 +804,8 @@ def learn_virtual(
         ref_stats = best_stats([r.stats for r in records if r.kept])
         worse = grew(stats, ref_stats, resolution_mm=profile.machine.resolution_mm) if guard else []
         rec = IterationRecord(first_iteration + it, stats, u_new, sig, clips, not worse, scale, text,
-                              sim if keep_runs else None, tim, dict(sim.shares))
+                              sim if keep_runs else None, tim, dict(sim.shares), dict(sim.air_stats),
+                              float(sim.cycle_time_s))
         del sim, prog  # one run held at a time: a large program's run is several GB
         records.append(rec)
         if on_record:
@@ -811,5 +841,5 @@ def learn_virtual(
         message = f"ran {n_iter} iterations"
     if status in ("max_iterations", "diverged"):
         message += f"; the output is iteration {records[best].iteration}"
-    return LearnResult(program, records, status, message, best, frozen)
+    return LearnResult(program, records, status, message, best, frozen, n_air, rule)
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ilcnc.air import MOVE_AIR, profile_move_classes
 from ilcnc.command_error import CommandSignal, command_signal_from_run, measurement_gate_mm, reference_command_samples
 from ilcnc.errors import LogError
 from ilcnc.logs import AxisLog, MeasuredPoints, moves_from_lines
@@ -49,9 +50,9 @@ class Measurement:
     signal : CommandSignal
         ``E(k)`` per command.
     stats : dict
-        ``max``, ``mean``, ``rms`` error, mm: the contour error of the feed
-        samples (log), or the point errors ``|E(k)|`` of the measured
-        commands (points).
+        ``max``, ``mean``, ``rms`` error, mm: the contour error of the cutting
+        moves' samples (log, :mod:`ilcnc.air`), or the point errors ``|E(k)|``
+        of the measured commands (points).
     actual_mm, contour_mm, signed_mm, foot_mm, path_pos_mm, feed_mask : ndarray or None
         Per-sample data of a log, for reports.
     notes : list of str
@@ -68,6 +69,7 @@ class Measurement:
     path_pos_mm: NDArray[np.float64] | None = None
     feed_mask: NDArray[np.bool_] | None = None
     notes: list[str] = field(default_factory=list)
+    air_stats: dict[str, float] | None = None
 
 
 def _stats(d: NDArray[np.float64]) -> dict[str, float]:
@@ -200,8 +202,10 @@ def measure_log(
     notes = []
     if sig.valid.size and cover < 1.0:
         notes.append(f"{int((~sig.valid).sum())} commands not measured by the log are left as they are")
-    return Measurement("log", sig, _stats(d), act, err.dist_mm, err.signed_mm, err.foot_mm, path_position_mm(err), feed,
-                       notes)
+    _rule, classes = profile_move_classes(original, profile)
+    air = classes[mv_or_first] == MOVE_AIR
+    return Measurement("log", sig, _stats(np.where(air, np.nan, d)), act, err.dist_mm, err.signed_mm, err.foot_mm,
+                       path_position_mm(err), feed, notes, _stats(np.where(air, d, np.nan)))
 
 
 def path_position_mm(err: Any) -> NDArray[np.float64]:

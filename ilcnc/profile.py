@@ -27,6 +27,7 @@ Lengths are millimetres and times seconds unless the key name says otherwise
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from collections.abc import Iterator, Mapping
@@ -679,6 +680,13 @@ SPECS: tuple[Spec, ...] = (
         default=0,
         kind="int",
     ),
+    _c(
+        "learning.air_moves",
+        "G01 commands in the air (above cutting.top_z_mm, or above work Z0 where the program cuts below it:"
+        " docs/learning.md): keep them as programmed (their error shapes no surface) or correct them like cuts.",
+        ("keep", "correct"),
+        default="keep",
+    ),
     # output ----------------------------------------------------------------
     _sec("output", "How corrected programs are written."),
     _c(
@@ -766,6 +774,17 @@ SPECS: tuple[Spec, ...] = (
         default=None,
         when=_CUT_M,
         default_doc="none (needs cutting.stock)",
+    ),
+    _f(
+        "cutting.top_z_mm",
+        "Stock top in the program's coordinates: a feed move whose lowest point lies above it is an air move"
+        " (figures apart, not corrected; --cutting-below-z overrides it). Absent: work Z0 where some feed move"
+        " reaches Z <= 0 (CAM programs put the work zero on the stock top), else every feed move cuts.",
+        "mm",
+        -1e5,
+        1e5,
+        default=None,
+        default_doc="work Z0 (see the description)",
     ),
     # tuning (issue 7) ----------------------------------------------------------
     _sec("tuning", "Settings of `ilcnc tune` that belong to the machine rather than to one run."),
@@ -1222,6 +1241,8 @@ class LearningSection:
         Virtual-CNC steps after each measured step (0: none).
     error : str
         Error estimate the law learns from (``"auto"`` picks the law's own).
+    air_moves : str
+        ``"keep"``: G01 commands in the air are not corrected; ``"correct"``: they are.
     """
 
     law: str = _default("learning.law")
@@ -1233,6 +1254,7 @@ class LearningSection:
     lead_commands: int = _default("learning.lead_commands")
     error: str = _default("learning.error")
     model_steps: int = _default("learning.model_steps")
+    air_moves: str = _default("learning.air_moves")
 
     def gain(self, name: str, axis: str) -> float:
         """Return gain ``name`` for ``axis`` (resolving per-axis mappings).
@@ -1356,6 +1378,8 @@ class CuttingSection:
         Stock (OMI) file as written in the profile.
     radial_depth_mm : float or None
         Radial depth of every command when there is no stock file, mm.
+    top_z_mm : float or None
+        Stock top, mm in program coordinates: feed moves above it are air moves (:mod:`ilcnc.air`).
     """
 
     model: str = _default("cutting.model")
@@ -1369,6 +1393,8 @@ class CuttingSection:
     wall: str = _default("cutting.wall")
     stock: str | None = _default("cutting.stock")
     radial_depth_mm: float | None = None
+    top_z_mm: float | None = None
+    top_z_from: str = "profile"  # "option": given as --cutting-below-z (not a profile key)
 
     @property
     def enabled(self) -> bool:
@@ -1499,6 +1525,15 @@ class MachineProfile:
             return a
         return "z" if "z" in self.axes else self.axis_names[-1]
 
+    def with_cutting_top(self, top_z_mm: float | None) -> MachineProfile:
+        """This profile with the stock top given on the command line (``--cutting-below-z``; ``None``: as is)."""
+        if top_z_mm is None:
+            return self
+        if not math.isfinite(top_z_mm):
+            raise InputError(None, None, f"--cutting-below-z must be a finite number of mm, not {top_z_mm}")
+        return dataclasses.replace(self, cutting=dataclasses.replace(self.cutting, top_z_mm=float(top_z_mm),
+                                                                     top_z_from="option"))
+
     def min_decimals(self, units: str) -> int:
         """Least number of decimals to write for a corrected coordinate.
 
@@ -1602,7 +1637,7 @@ class MachineProfile:
                 tool["frf_csv"] = t.frf_csv
             out["tool"] = tool
         if c != CuttingSection():
-            out["cutting"] = {k: v for k, v in vars(c).items() if v is not None}
+            out["cutting"] = {k: v for k, v in vars(c).items() if v is not None and k != "top_z_from"}
         if self.tuning != TuningSection():
             out["tuning"] = {"schedule": self.tuning.schedule.to_dict()}
         return out

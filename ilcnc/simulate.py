@@ -22,12 +22,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc._jit import njit
+from ilcnc.air import MOVE_CUT, MOVE_NOT_FED, CuttingRule, profile_move_classes
 from ilcnc.errors import InputError
 from ilcnc.logs import AxisLog
 from ilcnc.machine_errors import ErrorSources
 from ilcnc.plan import Reference, plan_program
 from ilcnc.profile import MachineProfile
-from ilcnc.program.model import MOVE_RAPID, Program
+from ilcnc.program.model import Program
 
 __all__ = ["SimulationResult", "simulate_program"]
 
@@ -47,9 +48,9 @@ class SimulationResult:
     feed_mask : ndarray (N,) bool
         Samples on feed moves (the statistics are over these; rapids are not cut).
     stats : dict
-        ``max``, ``mean``, ``rms`` contour error over feed samples, mm.
+        ``max``, ``mean``, ``rms`` contour error over the cutting moves' samples, mm (:mod:`ilcnc.air`).
     worst_sample : int
-        Sample of the largest contour error (-1 when there is none).
+        Sample of the largest contour error of the cutting moves (-1 when there is none).
     timings_s : dict
         Wall time of each stage, s: ``plan``, ``drives``, ``contour``, ``stats`` (feed mask and statistics),
         and ``errors`` when geometric or cutting errors are on.
@@ -69,6 +70,8 @@ class SimulationResult:
     worst_sample: int
     timings_s: dict[str, float] = field(default_factory=dict)
     shares: dict[str, dict[str, float]] = field(default_factory=dict)
+    air_stats: dict[str, float] = field(default_factory=lambda: {"max": 0.0, "mean": 0.0, "rms": 0.0})
+    cutting: CuttingRule = field(default_factory=lambda: CuttingRule(None, "none"))
 
     @property
     def cycle_time_s(self) -> float:
@@ -102,12 +105,15 @@ class SimulationResult:
 
 def run_json(run: Any, program: Program) -> dict[str, Any]:
     """The JSON object of a run (``simulate --json``): a :class:`SimulationResult` or a streamed run, which
-    both have ``n_samples``, ``cycle_time_s``, ``stats``, ``shares`` and ``worst(program)``."""
+    both have ``n_samples``, ``cycle_time_s``, ``stats`` (the cutting moves'), ``air_stats``, ``cutting``,
+    ``shares`` and ``worst(program)``."""
     out = {
         "program": str(program.path),
         "samples": run.n_samples,
         "cycle_time_s": run.cycle_time_s,
         "contour_error_mm": dict(run.stats),
+        "air_error_mm": dict(run.air_stats),
+        "cutting_rule": run.cutting.to_json(),
         "worst": run.worst(program),
     }
     if run.shares:
@@ -181,7 +187,7 @@ def simulate_program(
     # the path with its rapids: a feed sample still on the line of the rapid before it is in the air, not off
     # the cut (its E(k) counts for no command: command_error.PathWeightedSums)
     path = PathGeometry.from_moves(target.moves, include_rapids=True)
-    rapid = target.moves.kind == MOVE_RAPID
+    rule, classes = profile_move_classes(target, profile)
     # the search reaches as far along the path as the machine lags behind its reference (contour.py): the
     # reference may leave its move by the corner tolerance, and a compensated program's moves lie off the
     # drawing's by their corrections
@@ -198,11 +204,11 @@ def simulate_program(
             progress("errors")
         # the dynamic share: the contour error of the drives alone
         err_dyn = contour_error(path, act, ref.move, **reach)
-        _feed, shares["dynamic"], _w = _feed_stats(ref.move, rapid, err_dyn.dist_mm)
+        _feed, shares["dynamic"], _w = _feed_stats(ref.move, classes, err_dyn.dist_mm)
         del err_dyn
         disp = sources.displacements_mm(act, ref.command, program, target, ref.line)
         for name, d in disp.items():
-            _feed, shares[name], _w = _feed_stats(ref.move, rapid, np.sqrt(np.einsum("ij,ij->i", d, d)))
+            _feed, shares[name], _w = _feed_stats(ref.move, classes, np.sqrt(np.einsum("ij,ij->i", d, d)))
             act += d
         del disp
         timings["errors"] = time.perf_counter() - t0
@@ -212,83 +218,111 @@ def simulate_program(
     err = contour_error(path, act, ref.move, **reach)  # the hint: the reference's move (clipped to >= 0 there)
     timings["contour"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    feed, stats, worst = _feed_stats(ref.move, rapid, err.dist_mm)
+    acc = FeedStats()
+    feed = acc.add(ref.move, classes, err.dist_mm)
+    stats, worst = acc.result()
     timings["stats"] = time.perf_counter() - t0
-    return SimulationResult(ref, act, err, feed, stats, worst, timings, shares)
+    return SimulationResult(ref, act, err, feed, stats, worst, timings, shares, acc.air_result(), rule)
 
 
-def _feed_stats(move: NDArray[np.int32], rapid: NDArray[np.bool_], dist: NDArray[np.float64]
+
+def _feed_stats(move: NDArray[np.int32], classes: NDArray[np.int8], dist: NDArray[np.float64]
                 ) -> tuple[NDArray[np.bool_], dict[str, float], int]:
-    """Feed mask, max / mean / RMS of the finite distances on feed samples and the worst sample.
+    """Feed mask, max / mean / RMS of the finite distances on cutting samples and the worst cutting sample.
 
-    One compiled pass (:func:`_feed_values`) instead of ``np.where`` plus ``np.nanmax`` /
-    ``nanargmax`` / ``nanmean`` (eight temporaries of the sample count): the maximum and its first
-    sample are exact; the sums are compensated (Neumaier), within a few ulp of numpy's pairwise sums.
+    ``classes`` is the class of every move (:func:`ilcnc.air.move_classes`: rapid, cutting, air; a bool
+    array is read as "rapid"). One compiled pass (:func:`_feed_values`) instead of ``np.where`` plus
+    ``np.nanmax`` / ``nanargmax`` / ``nanmean`` (eight temporaries of the sample count): the maximum
+    and its first sample are exact; the sums are compensated (Neumaier), within a few ulp of numpy's
+    pairwise sums.
     """
     acc = FeedStats()
-    feed = acc.add(move, rapid, dist)
+    feed = acc.add(move, classes, dist)
     stats, worst = acc.result()
     return feed, stats, worst
 
 
+def _as_classes(classes: NDArray[Any]) -> NDArray[np.int8]:
+    if classes.dtype == np.bool_:  # a "rapid" mask: every other move cuts
+        return np.where(classes, MOVE_NOT_FED, MOVE_CUT).astype(np.int8)
+    return np.ascontiguousarray(classes, dtype=np.int8)
+
+
 class FeedStats:
-    """Max / mean / RMS of the contour error over the feed samples of a run, added stretch by stretch.
+    """Max / mean / RMS of the contour error over the cutting and the air samples of a run, added stretch
+    by stretch.
 
     The running sums carry on from one stretch to the next, so a run handed over in chunks
     (:mod:`ilcnc.stream`) gives the figures of one pass, bit for bit.
     """
 
     def __init__(self) -> None:
-        # count, worst sample, largest, sum and its compensation, sum of squares and its compensation
-        self.acc = np.array([0.0, -1.0, -math.inf, 0.0, 0.0, 0.0, 0.0])
+        # per class (cutting, air): count, worst sample, largest, sum and its compensation, sum of squares
+        # and its compensation
+        self.acc = np.array([[0.0, -1.0, -math.inf, 0.0, 0.0, 0.0, 0.0]] * 2)
 
-    def add(self, move: NDArray[np.int32], rapid: NDArray[np.bool_], dist: NDArray[np.float64],
+    def add(self, move: NDArray[np.int32], classes: NDArray[Any], dist: NDArray[np.float64],
             first_sample: int = 0) -> NDArray[np.bool_]:
-        """Add one stretch (its first sample is ``first_sample`` of the run); returns its feed mask."""
+        """Add one stretch (its first sample is ``first_sample`` of the run); returns its feed mask (cutting
+        and air samples)."""
         feed = np.empty(move.shape[0], dtype=np.bool_)
-        _feed_values(move, rapid, dist, feed, self.acc, int(first_sample))
+        _feed_values(move, _as_classes(classes), dist, feed, self.acc, int(first_sample))
         return feed
 
     @property
     def worst_sample(self) -> int:
-        return int(self.acc[1])
+        """The run's worst cutting sample so far (-1: none)."""
+        return int(self.acc[0, 1])
+
+    @staticmethod
+    def _figures(a: NDArray[np.float64]) -> dict[str, float]:
+        cnt, _worst, peak, s1, c1, s2, c2 = a
+        if cnt == 0:
+            return {"max": 0.0, "mean": 0.0, "rms": 0.0}
+        return {"max": float(peak), "mean": float((s1 + c1) / cnt), "rms": float(np.sqrt((s2 + c2) / cnt))}
 
     def result(self) -> tuple[dict[str, float], int]:
-        """The statistics (mm) and the run's worst sample (-1 when no feed sample had a finite error)."""
-        cnt, worst, peak, s1, c1, s2, c2 = self.acc
-        if cnt == 0:
-            return {"max": 0.0, "mean": 0.0, "rms": 0.0}, -1
-        return ({"max": float(peak), "mean": float((s1 + c1) / cnt), "rms": float(np.sqrt((s2 + c2) / cnt))},
-                int(worst))
+        """The cutting moves' statistics (mm) and the run's worst cutting sample (-1 when none had a finite
+        error)."""
+        if self.acc[0, 0] == 0:
+            return self._figures(self.acc[0]), -1
+        return self._figures(self.acc[0]), int(self.acc[0, 1])
+
+    def air_result(self) -> dict[str, float]:
+        """The air moves' statistics, mm (zeros when the run has no air move)."""
+        return self._figures(self.acc[1])
+
+    @property
+    def air_samples(self) -> int:
+        return int(self.acc[1, 0])
 
 
 @njit(cache=True, nogil=True)
-def _feed_values(move, rapid, dist, feed, acc, offset):  # pragma: no cover - compiled
-    """``feed = move >= 0 & not rapid[move]``, and over the finite ``dist`` where feed: how many, the first
-    sample of the largest (+ ``offset``), the largest, the sum and the sum of squares (Neumaier-compensated
-    sums), carried on in ``acc``."""
-    cnt = acc[0]
-    worst = acc[1]
-    peak = acc[2]
-    s1, c1, s2, c2 = acc[3], acc[4], acc[5], acc[6]
+def _feed_values(move, cls, dist, feed, acc, offset):  # pragma: no cover - compiled
+    """``feed = move >= 0 & cls[move] != 0``, and over the finite ``dist`` where feed, per class (row 0: cutting,
+    1: air): how many, the first sample of the largest (+ ``offset``), the largest, the sum and the sum of
+    squares (Neumaier-compensated sums), carried on in ``acc``."""
     for k in range(move.shape[0]):
         mv = move[k]
-        f = mv >= 0 and not rapid[mv]
+        c = cls[mv] if mv >= 0 else 0
+        f = c != 0
         feed[k] = f
         x = dist[k]
         if f and math.isfinite(x):
-            cnt += 1.0
-            if x > peak:
-                peak = x
-                worst = k + offset
+            r = 0 if c == 1 else 1
+            acc[r, 0] += 1.0
+            if x > acc[r, 2]:
+                acc[r, 2] = x
+                acc[r, 1] = k + offset
+            s1 = acc[r, 3]
             t = s1 + x
-            c1 += (s1 - t) + x if abs(s1) >= abs(x) else (x - t) + s1
-            s1 = t
+            acc[r, 4] += (s1 - t) + x if abs(s1) >= abs(x) else (x - t) + s1
+            acc[r, 3] = t
             x2 = x * x
+            s2 = acc[r, 5]
             t = s2 + x2
-            c2 += (s2 - t) + x2 if abs(s2) >= abs(x2) else (x2 - t) + s2
-            s2 = t
-    acc[0], acc[1], acc[2], acc[3], acc[4], acc[5], acc[6] = cnt, worst, peak, s1, c1, s2, c2
+            acc[r, 6] += (s2 - t) + x2 if abs(s2) >= abs(x2) else (x2 - t) + s2
+            acc[r, 5] = t
 
 
 def _check_against(program: Program, against: Program | None) -> None:

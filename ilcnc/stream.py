@@ -26,11 +26,12 @@ from typing import Any
 
 import numpy as np
 
+from ilcnc.air import CuttingRule
 from ilcnc.command_error import CommandSignal, PathWeightedSums, _finish_signal
 from ilcnc.errors import InputError
 from ilcnc.plan import DEFAULT_CHUNK_SAMPLES, plan_chunks
 from ilcnc.profile import MachineProfile
-from ilcnc.program.model import MOVE_RAPID, Program
+from ilcnc.program.model import Program
 
 __all__ = ["StreamedRun", "simulate_figures", "simulate_streamed", "stream_unsupported"]
 
@@ -42,9 +43,9 @@ class StreamedRun:
     Attributes
     ----------
     stats : dict
-        ``max``, ``mean``, ``rms`` contour error over feed samples, mm (as :class:`SimulationResult`).
+        ``max``, ``mean``, ``rms`` contour error over the cutting moves' samples, mm (as :class:`SimulationResult`).
     worst_sample : int
-        Sample of the largest contour error (-1 when there is none).
+        Sample of the largest contour error of the cutting moves (-1 when there is none).
     worst_at : dict
         Command index ``k`` and source ``line`` of that sample.
     n_samples : int
@@ -57,6 +58,10 @@ class StreamedRun:
         Chunks the run was planned in.
     timings_s : dict
         Wall time of each stage summed over the chunks, s: ``plan``, ``drives``, ``contour``, ``stats``, ``error``.
+    air_stats : dict
+        The air moves' figures, mm.
+    cutting : CuttingRule
+        The rule that told them apart (:mod:`ilcnc.air`).
     """
 
     stats: dict[str, float]
@@ -68,6 +73,8 @@ class StreamedRun:
     chunks: int
     timings_s: dict[str, float] = field(default_factory=dict)
     shares: dict[str, dict[str, float]] = field(default_factory=dict)
+    air_stats: dict[str, float] = field(default_factory=lambda: {"max": 0.0, "mean": 0.0, "rms": 0.0})
+    cutting: CuttingRule = field(default_factory=lambda: CuttingRule(None, "none"))
 
     @property
     def cycle_time_s(self) -> float:
@@ -131,6 +138,7 @@ def simulate_streamed(
     ValueError
         The profile cannot run chunk by chunk (:func:`stream_unsupported`).
     """
+    from ilcnc.air import profile_move_classes
     from ilcnc.contour import PathGeometry, contour_error
     from ilcnc.drives import DriveStream
     from ilcnc.simulate import FeedStats, _check_against, _check_travel
@@ -147,7 +155,7 @@ def simulate_streamed(
     # the path with its rapids: a feed sample still on the line of the rapid before it is in the air, not off
     # the cut (its E(k) counts for no command: command_error.PathWeightedSums)
     path = PathGeometry.from_moves(target.moves, include_rapids=True)
-    rapid = target.moves.kind == MOVE_RAPID
+    rule, classes = profile_move_classes(target, profile)
     slack: Any = profile.planner.corner_tolerance_mm
     if against is not None:
         off = np.maximum(np.linalg.norm(program.moves.start_mm - target.moves.start_mm, axis=1),
@@ -176,7 +184,7 @@ def simulate_streamed(
         err = contour_error(path, act, ch.move, reference_mm=ch.pos_mm, reference_slack_mm=slack)
         t2 = time.perf_counter()
         before = feed_stats.worst_sample
-        feed = feed_stats.add(ch.move, rapid, err.dist_mm, ch.first_sample)
+        feed = feed_stats.add(ch.move, classes, err.dist_mm, ch.first_sample)
         if feed_stats.worst_sample != before:
             j = feed_stats.worst_sample - ch.first_sample
             seg = int(err.seg[j]) if err.seg[j] >= 0 else int(ch.move[j])
@@ -197,7 +205,7 @@ def simulate_streamed(
     gate = gate_mm if gate_mm is not None else np.inf
     e[np.linalg.norm(np.nan_to_num(e, nan=np.inf), axis=1) > gate] = np.nan
     return StreamedRun(stats, worst, worst_at if worst >= 0 else {"k": -1, "line": 0}, n, period,
-                       _finish_signal(e, t, "path"), chunks, timings)
+                       _finish_signal(e, t, "path"), chunks, timings, {}, feed_stats.air_result(), rule)
 
 
 def simulate_figures(program: Program, profile: MachineProfile, *, against: Program | None = None,

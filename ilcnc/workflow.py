@@ -140,6 +140,7 @@ class LearnRequest:
     log_columns: str | None = None
     log_offset: tuple[float, float, float] | None = None
     force: bool = False
+    cutting_below_z_mm: float | None = None
 
 
 @dataclass(slots=True)
@@ -158,6 +159,9 @@ class LearnOutcome:
     notes: list[str] = field(default_factory=list)
     report_files: list[Path] = field(default_factory=list)
     reduction_rms: float = 0.0
+    air_commands: int = 0
+    cutting_rule: str = ""
+    cutting: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -171,6 +175,8 @@ class LearnOutcome:
             "clipped": [{"k": c.k, "line": c.line, "axis": c.axis, "wanted_mm": c.wanted_mm, "applied_mm": c.applied_mm}
                         for c in self.clips],
             "frozen_commands": self.frozen,
+            "air_commands": self.air_commands,
+            "cutting_rule": self.cutting,
             "notes": self.notes,
         }
 
@@ -249,6 +255,10 @@ def _entry_json(e: IterationEntry) -> dict[str, Any]:
     shares = (e.measured_from or {}).get("error_shares_mm")
     if shares:
         out["error_shares_mm"] = shares
+    for key in ("air_error_mm", "cycle_time_s"):
+        value = (e.measured_from or {}).get(key)
+        if value is not None:
+            out[key] = value
     return out
 
 
@@ -281,6 +291,10 @@ def _record_writer(state: LearnState, program: Program) -> Callable[[IterationRe
         entry.measured_from = {"kind": "virtual", "path": None, "sha256": None}
         if rec.shares:
             entry.measured_from["error_shares_mm"] = rec.shares
+        if rec.air_stats is not None:
+            entry.measured_from["air_error_mm"] = rec.air_stats
+        if rec.cycle_time_s is not None:
+            entry.measured_from["cycle_time_s"] = rec.cycle_time_s
         state.gain_scale = min(state.gain_scale, rec.gain_scale)
         state.save()
 
@@ -350,9 +364,12 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
             e.output = str(req.out)
     state.status = result.status
     state.save()
+    rule = result.cutting
     outcome = LearnOutcome("virtual", req.program, out, state.directory, [r.to_json() for r in result.iterations],
                            result.status, result.message, result.clips, result.frozen, [],
-                           reduction_rms=result.reduction("rms"))
+                           reduction_rms=result.reduction("rms"), air_commands=result.air_commands,
+                           cutting_rule="" if rule is None else rule.describe(),
+                           cutting=None if rule is None else rule.to_json())
     if req.report is not None:
         outcome.report_files = _report_virtual(req, original, result, best_rec)
     return outcome
@@ -481,6 +498,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     entry.errors = state.write_errors(entry.iteration, meas.signal.e_mm, meas.signal.t_s, meas.signal.valid)
     entry.stats = meas.stats
     entry.measured_from = {"kind": meas.kind, "path": str(source), "sha256": src_sha}
+    if meas.air_stats is not None:
+        entry.measured_from["air_error_mm"] = meas.air_stats
     best = state.best()
     kept_stats = [e.stats for e in state.kept() if e.stats is not None]
     ref_stats = best_stats(kept_stats) if kept_stats else None
@@ -603,7 +622,7 @@ def learn_part(req: LearnRequest, *, progress: Callable[[int, int, str], None] |
 
     if req.log is not None and req.points is not None:
         raise InputError(None, None, "give either --log or --points, not both")
-    profile = load_profile(req.profile)
+    profile = load_profile(req.profile).with_cutting_top(req.cutting_below_z_mm)
     profile_sha = sha256_bytes(read_bytes(req.profile))
     data = read_bytes(req.program)
     if req.force and (req.log is not None or req.points is not None):

@@ -265,8 +265,16 @@ def test_cam_program_learned_five_iterations_cuts_rms_by_70_percent(jsdc_run) ->
     prog, prof, res = jsdc_run
     assert prog.n_commands > 2000
     rms = [r.stats["rms"] for r in res.iterations]
-    assert len(rms) == 6 and all(r.kept for r in res.iterations)
-    assert all(b < a for a, b in pairwise(rms)), rms  # monotone
+    # the figures are the cutting moves' (the 5 G1 moves at Z1, "rapid to initial position", are air moves):
+    # their max stalls at a corner between moves near 11.7 µm that no existing end point shapes (what
+    # --refine is for), so the guard refuses the iteration whose max grew there, and only that one
+    assert len(rms) == 6 and res.iterations[1].kept
+    kept = [r for r in res.iterations if r.kept]
+    assert all(b.stats["rms"] < a.stats["rms"] for a, b in pairwise(kept[:4])), rms  # monotone while it learns
+    for i, r in enumerate(res.iterations):
+        if not r.kept:
+            best_max = min(x.stats["max"] for x in res.iterations[:i] if x.kept)
+            assert r.stats["max"] > best_max, (i, r.stats)
     assert res.reduction("rms") >= 0.70, rms
     assert res.best_record.stats["max"] < res.iterations[0].stats["max"]
     # never beyond the bound, nothing clipped

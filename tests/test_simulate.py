@@ -89,7 +89,7 @@ def test_simulate_command_writes_log_and_json(tmp_path: Path) -> None:
              "--out", str(out), "--json")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
-    assert set(summary) == {"program", "samples", "cycle_time_s", "contour_error_mm", "worst"}
+    assert set(summary) == {"program", "samples", "cycle_time_s", "contour_error_mm", "air_error_mm", "cutting_rule", "worst"}
     assert summary["samples"] == len(out.read_text().splitlines()) - 1
     assert 0 < summary["contour_error_mm"]["rms"] <= summary["contour_error_mm"]["max"] < 0.1
     assert summary["worst"]["line"] > 0
@@ -142,3 +142,19 @@ def test_feed_stats_equal_the_nan_reductions() -> None:
     assert stats["rms"] == pytest.approx(float(np.sqrt(np.nanmean(d * d))), rel=1e-14)
     none = _feed_stats(move, np.ones(50, bool), dist)
     assert none[1] == {"max": 0.0, "mean": 0.0, "rms": 0.0} and none[2] == -1
+    # with move classes: the cutting moves' figures, the air moves' apart, the feed mask over both
+    from ilcnc.air import MOVE_AIR, MOVE_CUT, MOVE_NOT_FED
+    from ilcnc.simulate import FeedStats
+
+    cls = np.where(rapid, MOVE_NOT_FED, np.where(rng.random(50) < 0.3, MOVE_AIR, MOVE_CUT)).astype(np.int8)
+    acc = FeedStats()
+    half = n // 2
+    feed2 = np.concatenate([acc.add(move[:half], cls, dist[:half]), acc.add(move[half:], cls, dist[half:], half)])
+    np.testing.assert_array_equal(feed2, ref_feed)
+    mc = np.maximum(move, 0)
+    for got, want in ((acc.result()[0], MOVE_CUT), (acc.air_result(), MOVE_AIR)):
+        d = np.where((move >= 0) & (cls[mc] == want) & np.isfinite(dist), dist, np.nan)
+        assert got["max"] == float(np.nanmax(d))
+        assert got["rms"] == pytest.approx(float(np.sqrt(np.nanmean(d * d))), rel=1e-14)
+    d = np.where((move >= 0) & (cls[mc] == MOVE_CUT) & np.isfinite(dist), dist, np.nan)
+    assert acc.result()[1] == int(np.nanargmax(d))
