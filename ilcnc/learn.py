@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc.air import CuttingRule, air_command_mask, profile_cutting_rule
+from ilcnc.air import CuttingRule, air_command_mask, profile_cutting_rule, profile_move_classes
 from ilcnc.command_error import CommandSignal, error_kind, measurement_gate_mm, signal_of_simulation
 from ilcnc.laws import AXES, LearningLaw, cut_runs, make_law
 from ilcnc.profile import MachineProfile
@@ -843,3 +843,84 @@ def learn_virtual(
         message += f"; the output is iteration {records[best].iteration}"
     return LearnResult(program, records, status, message, best, frozen, n_air, rule)
 
+
+
+@dataclass(slots=True, eq=False)
+class Refinement:
+    """A program refined for learning (:func:`refine_for_learning`).
+
+    Attributes
+    ----------
+    program : Program
+        The refined program: the original with the inserted straight feeds (the learning index from now on).
+    plan : RefinePlan
+        Where the points went and why (:mod:`ilcnc.refine`).
+    inserted : InsertResult
+        The inserted lines, and the moves left alone with their reasons (:mod:`ilcnc.program.insert`).
+    first_stats : dict
+        The original program's first run: cutting moves' ``max`` / ``mean`` / ``rms``, mm.
+    cycle_time_s : tuple of float
+        Planned cycle time of the original and of the refined program, s.
+    """
+
+    program: Program
+    plan: Any
+    inserted: Any
+    first_stats: dict[str, float]
+    cycle_time_s: tuple[float, float]
+
+    @property
+    def cycle_change(self) -> float:
+        a, b = self.cycle_time_s
+        return b / a - 1.0 if a > 0 else 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        out = self.plan.summary()
+        out.update({"inserted_lines": self.inserted.n_inserted, "skipped_moves": len(self.inserted.skipped),
+                    "renumbered": bool(self.inserted.renumbered), "first_run_mm": dict(self.first_stats),
+                    "cycle_time_s": {"original": self.cycle_time_s[0], "refined": self.cycle_time_s[1]}})
+        return out
+
+    def notes(self) -> list[str]:
+        """One line each for the user: what was inserted where, what was left alone and why, the cost."""
+        js = self.plan.summary()
+        out = [f"refined: {self.inserted.n_inserted} lines inserted on {js['moves_split']} moves at {js['corners']}"
+               f" corners and {js['rapids']} feed starts after a rapid (first-run error >= {js['threshold_mm'] * 1e3:.1f}"
+               f" µm); planned cycle time {self.cycle_time_s[0]:.2f} -> {self.cycle_time_s[1]:.2f} s"
+               f" ({self.cycle_change:+.2%})"]
+        for reason, n in sorted(js["passed"].items()):
+            out.append(f"refine: {n} spots left alone ({reason})")
+        reasons: dict[str, int] = {}
+        for s in self.inserted.skipped:
+            reasons[s.reason] = reasons.get(s.reason, 0) + 1
+        for reason, n in sorted(reasons.items(), key=lambda x: -x[1])[:5]:
+            out.append(f"refine: {n} moves not split: {reason}")
+        if self.inserted.renumbered:
+            out.append("refine: block numbers renumbered after the first inserted line (Klartext needs them consecutive)")
+        return out
+
+
+def refine_for_learning(original: Program, profile: MachineProfile) -> Refinement:
+    """Run the original program once on the virtual CNC and refine it where that run says (:mod:`ilcnc.refine`).
+
+    The refined program runs the original path (every inserted point on it within 0.05 µm per axis, checked
+    by :func:`ilcnc.program.insert.insert_points` on the program read back).
+    """
+    from ilcnc.plan import plan_program
+    from ilcnc.program import read_program
+    from ilcnc.program.insert import insert_points
+    from ilcnc.refine import plan_refinement
+    from ilcnc.simulate import simulate_program
+
+    original.require_complete()
+    sim = simulate_program(original, profile)
+    _rule, classes = profile_move_classes(original, profile)
+    plan = plan_refinement(original, profile, dist_mm=sim.error.dist_mm, seg=sim.error.seg, u=sim.error.u,
+                           classes=classes)
+    first = dict(sim.stats)
+    t0 = float(sim.cycle_time_s)
+    del sim
+    res = insert_points(original, plan.points, min_decimals=profile.min_decimals(original.units))
+    refined = read_program(original.path, default_units=original.units, data=res.text.encode("latin-1"))
+    t1 = float(plan_program(refined, profile).duration_s) if res.n_inserted else t0
+    return Refinement(refined, plan, res, first, (t0, t1))

@@ -126,8 +126,8 @@ from ilcnc.program.model import (
     MoveTable,
 )
 
-__all__ = ["PlanLimits", "Reference", "ReferenceChunk", "check_limits", "plan_chunks", "plan_moves", "plan_program",
-           "planned_duration_s"]
+__all__ = ["PlanLimits", "Reference", "ReferenceChunk", "check_limits", "corner_zones_mm", "plan_chunks", "plan_moves",
+           "plan_program", "planned_duration_s"]
 
 _EPS = 1e-9
 _HOLD_SAMPLES = 3
@@ -482,6 +482,44 @@ def _profile_moves(program: object, profile: MachineProfile) -> MoveTable:
     return moves
 
 
+def corner_zones_mm(program: object, profile: MachineProfile) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Length of the slow zone the planner gives each move at its start and at its end, mm (first pass).
+
+    The ideal interpolator runs a zone of ``v_corner * span`` before and after a corner at the corner
+    speed (:func:`_pieces`); the filters then round the corner within it. A point inserted on a move
+    farther from the corner than that zone (and, where the program sets the tolerance, farther than four
+    tolerances: the quarter-move bound) leaves the plan as it was: the zone stays inside the piece next
+    to the corner, and the new junction is straight, so it has no zone. Re-planning passes that lower
+    speeds where a limit was hit can still move zones: :mod:`ilcnc.refine` checks the refined plan.
+    (0, 0) for every move under ``planner.profile: linuxcnc``, which has no such zones.
+    """
+    moves = _profile_moves(program, profile)
+    m = len(moves)
+    z_in, z_out = np.zeros(m), np.zeros(m)
+    if m == 0 or profile.planner.profile == "linuxcnc":
+        return z_in, z_out
+    limits = PlanLimits.from_profile(profile)
+    period_s = profile.machine.servo_period_s
+    length = move_lengths_mm(moves)
+    speed = _nominal_speed(moves, length, limits)
+    hold_s = _stand_still_s(moves, length)
+    active = (length > _EPS) | (hold_s > 0.0)
+    geo = _Geometry(*_directions(moves), arc_sweep_rad(moves))
+    for g0, g1 in _groups(moves.kind, active):
+        idx = np.arange(g0, g1)
+        idx = idx[active[idx]]
+        if idx.size < 2:
+            continue
+        g = _group_setup(moves, geo, idx, length, speed, hold_s, limits, period_s, profile.planner.profile,
+                         profile.planner.corner_tolerance_mm, profile.planner.jerk_time_constant_s)
+        vj = np.where(g.vj <= 0.0, np.inf, g.vj)
+        v_in = np.minimum(g.v, np.concatenate(([np.inf], vj)))
+        v_out = np.minimum(g.v, np.concatenate((vj, [np.inf])))
+        z_in[idx] = np.where(v_in < g.v, v_in * g.span_s, 0.0)
+        z_out[idx] = np.where(v_out < g.v, v_out * g.span_s, 0.0)
+    return z_in, z_out
+
+
 def _runs_to_samples(run_move: NDArray[np.int64], run_count: NDArray[np.int64]) -> NDArray[np.int32]:
     return np.repeat(run_move.astype(np.int32), run_count)
 
@@ -586,7 +624,7 @@ def _replan_group(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: NDAr
         cum = np.cumsum(counts)
         lo_s, hi_s = _violation_window(bad, extra + 3, n + 1)
         lo_g, hi_g = (np.where(x > 0, np.searchsorted(cum, x - 1, side="right"), 0) for x in (lo_s, hi_s))
-        scale[_slower_moves(lo_g, hi_g, idx.shape[0])] *= 0.8
+        scale[_slower_moves(lo_g, hi_g, idx.shape[0], g.chain)] *= 0.8
         pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold)
     return _GroupPass(gs, ge, arcs, start, lens, extra, pieces, n, t_end, total, counts, scale, thr_a, thr_j)
 
@@ -792,7 +830,28 @@ def _position_on_moves(moves: MoveTable, mv: NDArray[np.int64], frac: NDArray[np
     return pos
 
 
-def _junction_tolerances(blend_tol: NDArray[np.float64], default_tol_mm: float, length: NDArray[np.float64]
+#: Direction change (|u2 - u1|) below which a junction of two straight moves is straight: the moves are one line.
+_COLLINEAR = 1e-9
+
+
+def _chain_lengths(length: NDArray[np.float64], straight: NDArray[np.bool_], is_arc: NDArray[np.bool_]
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per junction (n - 1): the length of the chain of collinear straight moves ending before it and of the
+    one starting after it, mm (a move's own length where its neighbours are not collinear with it)."""
+    n = length.shape[0]
+    if n < 2:
+        return np.zeros(0), np.zeros(0)
+    join = straight & ~is_arc[:-1] & ~is_arc[1:]
+    if not join.any():
+        return length[:-1], length[1:]
+    # chain id of every move: a new chain starts where the junction before it is not a join
+    chain = np.concatenate(([0], np.cumsum(~join)))
+    total = np.bincount(chain, weights=length)
+    return total[chain[:-1]], total[chain[1:]]
+
+
+def _junction_tolerances(blend_tol: NDArray[np.float64], default_tol_mm: float, length: NDArray[np.float64],
+                         before_len: NDArray[np.float64] | None = None, after_len: NDArray[np.float64] | None = None,
                          ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Corner tolerance of each junction of a group from the path control of its moves (module docstring,
     "Path control").
@@ -805,6 +864,9 @@ def _junction_tolerances(blend_tol: NDArray[np.float64], default_tol_mm: float, 
         The profile's corner tolerance, mm, for moves without a program setting.
     length : ndarray (n,)
         Their lengths, mm (inf for a move that bounds no tolerance).
+    before_len, after_len : ndarray (n - 1,), optional
+        Lengths of the collinear chains before and after each junction (:func:`_chain_lengths`), mm;
+        default the moves' own.
 
     Returns
     -------
@@ -822,7 +884,9 @@ def _junction_tolerances(blend_tol: NDArray[np.float64], default_tol_mm: float, 
     # shorter adjoining move (the profile's tolerance is used as it is)
     programmed = ~np.isnan(blend_tol[:-1])
     if programmed.any():
-        quarter = _BLEND_LENGTH_FRACTION * np.minimum(length[:-1], length[1:])
+        a = length[:-1] if before_len is None else before_len
+        b = length[1:] if after_len is None else after_len
+        quarter = _BLEND_LENGTH_FRACTION * np.minimum(a, b)
         tol_j = np.where(programmed & (tol_j > 0.0), np.minimum(tol_j, quarter), tol_j)
     return tol_j, t_a < 0.0
 
@@ -893,7 +957,11 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
         u1, u2 = u_out[:-1], u_in[1:]
         seg_len = np.where(still, np.inf, seg_len)
     du = np.linalg.norm(u2 - u1, axis=1)
-    tol_j, stop = _junction_tolerances(blend_g, default_tol_mm, seg_len)
+    # a straight line split into collinear moves plans as the line (refinement inserts such points): the
+    # lengths that bound a corner's tolerance and tell a curve from a corner are those of the collinear
+    # chains meeting there, not of the pieces
+    before_len, after_len = _chain_lengths(seg_len, (du <= _COLLINEAR) & ~still[:-1] & ~still[1:], is_arc)
+    tol_j, stop = _junction_tolerances(blend_g, default_tol_mm, seg_len, before_len, after_len)
     vj = np.full(n - 1, np.inf)
     # corner rounding by the filters stays within the tolerance; an exact path stops where the direction changes
     if dev_per_v > 0:
@@ -910,7 +978,7 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
     # densely segmented curves act like arcs: curvature from the turn over the mean segment length
     curve = tol_j > 0
     if var_t2 > 0 and curve.any():
-        seg = 0.5 * (length[idx[:-1]] + length[idx[1:]])
+        seg = 0.5 * (before_len + after_len)
         kappa = du / np.maximum(seg, _EPS)
         with np.errstate(divide="ignore", invalid="ignore"):  # 0 / 0 at exact-path junctions, masked below
             v_curve = np.where(kappa > 1e-12, np.sqrt(2.0 * tol_j / (kappa * var_t2)), np.inf)
@@ -934,6 +1002,22 @@ class _GroupSetup:
     span_s: float
     first: _Pieces
     first_size: int
+    chain: NDArray[np.int64] | None = None  # collinear chain of each move (None: every move its own)
+
+
+def _collinear_chains(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], hold: NDArray[np.float64]
+                      ) -> NDArray[np.int64] | None:
+    """Chain id of each of the group's moves: consecutive straight moves joined without a turn share one
+    (None when no junction of the group is straight)."""
+    if idx.shape[0] < 2:
+        return None
+    du = np.linalg.norm(geo.t_in[idx[1:]] - geo.t_out[idx[:-1]], axis=1)
+    arc = moves.kind[idx] >= MOVE_ARC_CW
+    still = hold > 0.0
+    join = (du <= _COLLINEAR) & ~arc[:-1] & ~arc[1:] & ~still[:-1] & ~still[1:]
+    if not join.any():
+        return None
+    return np.concatenate(([0], np.cumsum(~join)))
 
 
 def _group_setup(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], length: NDArray[np.float64],
@@ -956,7 +1040,7 @@ def _group_setup(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], lengt
     span_s = sum(filt_s)
     first = _pieces(length[idx], v * np.ones(idx.shape[0]), vj, span_s, hold)
     size = _ideal_samples(first[4], period_s)[0] + sum(n - 1 for n in lengths)
-    return _GroupSetup(idx, v, vj, hold, lengths, span_s, first, size)
+    return _GroupSetup(idx, v, vj, hold, lengths, span_s, first, size, _collinear_chains(moves, geo, idx, hold))
 
 
 def _ideal_samples(dur: NDArray[np.float64], period_s: float) -> tuple[int, NDArray[np.float64], float]:
@@ -977,12 +1061,17 @@ def _violation_window(bad: NDArray[np.int64], total: int, n_sig: int) -> tuple[N
     return np.clip(bad - total, 0, n_sig - 1), np.clip(bad + 1, 0, n_sig - 1)
 
 
-def _slower_moves(lo_g: NDArray[np.int64], hi_g: NDArray[np.int64], n_moves: int) -> NDArray[np.bool_]:
-    """Group moves between ``lo_g`` and ``hi_g`` (group move indices, inclusive) of any window."""
+def _slower_moves(lo_g: NDArray[np.int64], hi_g: NDArray[np.int64], n_moves: int,
+                  chain: NDArray[np.int64] | None = None) -> NDArray[np.bool_]:
+    """Group moves between ``lo_g`` and ``hi_g`` (group move indices, inclusive) of any window, with every
+    move of a collinear ``chain`` one of them is in (a straight line is slowed whole, however it is split)."""
     mark = np.zeros(n_moves + 1, dtype=np.int64)
     np.add.at(mark, lo_g, 1)
     np.add.at(mark, hi_g + 1, -1)
-    return np.cumsum(mark)[:-1] > 0
+    sel = np.cumsum(mark)[:-1] > 0
+    if chain is not None and sel.any():
+        sel = (np.bincount(chain, weights=sel.astype(np.float64)) > 0)[chain]
+    return sel
 
 
 def _plan_group_numpy(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: NDArray[np.float64],
@@ -1017,7 +1106,8 @@ def _plan_group_numpy(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: 
         # lower the speed of every move inside the filter window of a violating sample
         total = sum(n - 1 for n in lengths) + 3
         lo_s, hi_s = _violation_window(bad, total, mv_sig.shape[0])
-        scale[_slower_moves(np.searchsorted(idx, mv_sig[lo_s]), np.searchsorted(idx, mv_sig[hi_s]), idx.shape[0])] *= 0.8
+        scale[_slower_moves(np.searchsorted(idx, mv_sig[lo_s]), np.searchsorted(idx, mv_sig[hi_s]), idx.shape[0],
+                            g.chain)] *= 0.8
         pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold)
     n_out = out.shape[0] - 1
     buf = _reserve(buf, at + n_out)

@@ -687,6 +687,27 @@ SPECS: tuple[Spec, ...] = (
         ("keep", "correct"),
         default="keep",
     ),
+    _sec(
+        "learning.refine",
+        "Refinement (learn --refine): straight-feed points inserted on the original path where the first run shows"
+        " error the program's own end points cannot shape (corners, the first feed move after a rapid); they learn"
+        " like any other command (docs/learning.md).",
+    ),
+    _c("learning.refine.enabled", "Refine without --refine on the command line (off: only with --refine).", ("off", "on"),
+       default="off"),
+    _f("learning.refine.corner_angle_deg", "A corner is refined when the path turns by more than this between two"
+       " straight feeds.", "deg", 1, 179, default=15.0),
+    _f("learning.refine.points_per_side", "Most points inserted on each side of a corner (and after a rapid), at"
+       " distances halving from the end of the disturbed stretch towards the corner.", "", 1, 20, default=6,
+       kind="int"),
+    _f("learning.refine.max_lines", "Most lines the refinement may insert into one program; a refinement that needs"
+       " more is refused (raise it or refine less).", "", 1, 10_000_000, default=200_000, kind="int"),
+    _f("learning.refine.min_error_mm", "Least contour error of the first run at a corner or rapid for it to be"
+       " refined. Absent: twice the machine's resolution (below it the error is at the physical floor).", "mm", 0, 10,
+       default=None, default_doc="2 × machine.resolution_mm"),
+    _f("learning.refine.min_spacing_periods", "Least distance of an inserted point from another end point, in servo"
+       " periods of motion at the move's feed (a controller runs at most one block per period).", "", 1, 1000,
+       default=3.0),
     # output ----------------------------------------------------------------
     _sec("output", "How corrected programs are written."),
     _c(
@@ -1217,6 +1238,38 @@ class PlannerSection:
 
 
 @dataclass(frozen=True)
+class RefineSection:
+    """The ``learning.refine:`` section (:mod:`ilcnc.refine`).
+
+    Parameters
+    ----------
+    enabled : str
+        ``"on"``: refine without ``--refine``.
+    corner_angle_deg : float
+        Turning angle above which a corner between straight feeds is refined, degrees.
+    points_per_side : int
+        Most points per side of a corner or after a rapid.
+    max_lines : int
+        Most inserted lines per program (more is refused).
+    min_error_mm : float or None
+        Least first-run error of a refined spot, mm (``None``: twice the resolution).
+    min_spacing_periods : float
+        Least spacing of end points, in servo periods of motion at the feed.
+    """
+
+    enabled: str = _default("learning.refine.enabled")
+    corner_angle_deg: float = _default("learning.refine.corner_angle_deg")
+    points_per_side: int = _default("learning.refine.points_per_side")
+    max_lines: int = _default("learning.refine.max_lines")
+    min_error_mm: float | None = _default("learning.refine.min_error_mm")
+    min_spacing_periods: float = _default("learning.refine.min_spacing_periods")
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {k: v for k, v in vars(self).items() if v is not None}
+        return out
+
+
+@dataclass(frozen=True)
 class LearningSection:
     """The ``learning:`` section.
 
@@ -1243,6 +1296,8 @@ class LearningSection:
         Error estimate the law learns from (``"auto"`` picks the law's own).
     air_moves : str
         ``"keep"``: G01 commands in the air are not corrected; ``"correct"``: they are.
+    refine : RefineSection
+        Settings of the refinement (``learn --refine``).
     """
 
     law: str = _default("learning.law")
@@ -1255,6 +1310,7 @@ class LearningSection:
     error: str = _default("learning.error")
     model_steps: int = _default("learning.model_steps")
     air_moves: str = _default("learning.air_moves")
+    refine: RefineSection = field(default_factory=RefineSection)
 
     def gain(self, name: str, axis: str) -> float:
         """Return gain ``name`` for ``axis`` (resolving per-axis mappings).
@@ -1595,6 +1651,10 @@ class MachineProfile:
         }
         if lr.model_steps:
             learning["model_steps"] = lr.model_steps
+        if lr.air_moves != "keep":
+            learning["air_moves"] = lr.air_moves
+        if lr.refine != RefineSection():
+            learning["refine"] = lr.refine.to_dict()
         if lr.q_filter_hz is not None:
             learning["q_filter_hz"] = lr.q_filter_hz
         output: dict[str, Any] = {"dialect": o.dialect}
@@ -2170,7 +2230,7 @@ def _build(d: dict[str, Any], path: Path | None, text: str) -> MachineProfile:
         axes=axes,
         controller=ControllerSection(**d["controller"]),
         planner=PlannerSection(**d["planner"]),
-        learning=LearningSection(**d["learning"]),
+        learning=LearningSection(**{**d["learning"], "refine": RefineSection(**d["learning"]["refine"])}),
         output=OutputSection(**d["output"]),
         geometry=GeometrySection(**d["geometry"]),
         tool=ToolSection(**d["tool"]),

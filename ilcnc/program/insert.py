@@ -530,13 +530,27 @@ def _plan_move(program: Program, i: int, fractions: list[float], known: NDArray[
         if mode[a] == "inc" and has_word[a]:
             inc_src[a] = Decimal(text[int(mv.word_start[i, a]):int(mv.word_end[i, a])].replace(",", ".")
                                  .replace(" ", "").replace("\t", ""))
+    # exactly on the line: with start S and end E on a decimal grid, the points S + (E - S) j / g are on the
+    # grid 10^e finer when g divides every (E - S) 10^e: so the fraction is snapped to j / g and the point
+    # written with e more decimals (at most 3), the fewest that place it within SNAP_MM of where it was asked.
+    # A point rounded to the decimals instead lies up to 0.05 µm off the line, and the small turn that makes
+    # at each inserted point changes how a planner takes the corner next to it.
+    grid = _exact_grid(start, end, off, unit, dec, moving)
     texts: list[str] = []
     pts: list[NDArray[np.float64]] = []
     fr: list[float] = []
     prev_cum = [Decimal(0)] * 3
     prev_pt = start.copy()
     d_vec = end - start
-    for f in fractions:
+    bounds = [0.0, *fractions, 1.0]
+    for n_f, f in enumerate(fractions):
+        # snapped by at most a quarter of the distance to the neighbouring points (and SNAP_MM)
+        room = 0.25 * length * min(bounds[n_f + 1] - bounds[n_f], bounds[n_f + 2] - bounds[n_f + 1])
+        exact = _snap(grid, f, length, min(SNAP_MM, room)) if grid is not None else None
+        if exact is not None:
+            f, e_dec, exact_pt = exact
+        else:
+            e_dec, exact_pt = dec, None
         target = start + f * d_vec
         words: list[str] = []
         pt = start.copy()
@@ -544,16 +558,21 @@ def _plan_move(program: Program, i: int, fractions: list[float], known: NDArray[
             if mode[a] is None:
                 continue
             if mode[a] == "inc":
-                cum = Decimal(repr(float(inc_src[a]) * f)).quantize(q) if inc_src[a] != 0 else Decimal(0).quantize(q)
+                if exact_pt is not None:
+                    cum = exact_pt[a] - exact_pt[3][a]  # the increment from the move's start, exact
+                else:
+                    cum = Decimal(repr(float(inc_src[a]) * f)).quantize(q) if inc_src[a] != 0 else Decimal(0).quantize(q)
                 step = cum - prev_cum[a]
                 prev_cum[a] = cum
-                num = format_number(float(step), dec, style, klartext=klartext)
+                num = format_number(float(step), max(e_dec, dec), style, klartext=klartext)
                 pt[a] = start[a] + float(cum) * unit
                 letter = ("I" + _AXES[a]) if klartext else _AXES[a]
             else:
                 value = (target[a] - off[a]) / unit
                 dd = dec
-                if not moving[a]:
+                if exact_pt is not None and moving[a]:
+                    value, dd = float(exact_pt[a]), e_dec
+                elif not moving[a]:
                     # a constant axis is written back as exactly as a few more decimals allow
                     dd = next((k for k in range(dec, max(dec, 6) + 1) if abs(round(value, k) - value) <= 1e-9), dec)
                 num = format_number(value, dd, style, klartext=klartext)
@@ -596,8 +615,56 @@ def _plan_move(program: Program, i: int, fractions: list[float], known: NDArray[
             ws, we = int(mv.word_start[i, a]), int(mv.word_end[i, a])
             w_dec, w_style = spelling(text[ws:we])
             rewrite.append((ws - line_start, we - line_start,
-                            format_number(float(rem), max(dec, w_dec), w_style, klartext=klartext)))
+                            format_number(float(rem), max(dec, w_dec, _decimals_of(rem)), w_style, klartext=klartext)))
     return _Plan(i, line, texts, pts, fr, rewrite, dec)
+
+
+#: Largest distance along the move from where a point was asked to where it goes exactly on the line, mm.
+SNAP_MM = 2e-3
+#: Most decimals added to write a point exactly on the line.
+_MAX_EXTRA_DECIMALS = 3
+
+
+def _decimals_of(x: Decimal) -> int:
+    return max(0, -int(x.normalize().as_tuple().exponent))
+
+
+def _exact_grid(start: NDArray[np.float64], end: NDArray[np.float64], off: NDArray[np.float64], unit: float,
+                dec: int, moving: NDArray[np.bool_]) -> tuple[list[int], list[int], int] | None:
+    """Start and end in program units as integers of ``10**-dec`` (None when either is not on that grid)."""
+    s_int, e_int = [], []
+    for a in range(3):
+        sv = (start[a] - off[a]) / unit * 10.0**dec
+        ev = (end[a] - off[a]) / unit * 10.0**dec
+        si, ei = round(sv), round(ev)
+        if moving[a] and (abs(sv - si) > 1e-6 * max(1.0, abs(sv)) or abs(ev - ei) > 1e-6 * max(1.0, abs(ev))):
+            return None
+        s_int.append(si)
+        e_int.append(ei)
+    return s_int, e_int, dec
+
+
+def _snap(grid: tuple[list[int], list[int], int], f: float, length: float, tol_mm: float
+          ) -> tuple[float, int, tuple[Decimal, Decimal, Decimal, tuple[Decimal, Decimal, Decimal]]] | None:
+    """Fraction, decimals and exact point (program units, plus the exact start) of the grid point of the line
+    nearest to fraction ``f`` on the coarsest grid that has one within ``tol_mm`` (None: none has)."""
+    s_int, e_int, dec = grid
+    for extra in range(_MAX_EXTRA_DECIMALS + 1):
+        k = 10**extra
+        delta = [(e - s) * k for s, e in zip(s_int, e_int, strict=True)]
+        g = 0
+        for d in delta:
+            g = math.gcd(g, abs(d))
+        if g == 0:
+            return None
+        j = round(f * g)
+        if not 0 < j < g or abs(j / g - f) * length > tol_mm:
+            continue
+        scale = Decimal(1).scaleb(-(dec + extra))
+        start = tuple(Decimal(s * k) * scale for s in s_int)
+        pt = tuple(Decimal(s * k + d // g * j) * scale for s, d in zip(s_int, delta, strict=True))
+        return j / g, dec + extra, (pt[0], pt[1], pt[2], start)  # type: ignore[return-value]
+    return None
 
 
 def _split_lines(text: str) -> list[str]:
