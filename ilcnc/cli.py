@@ -341,6 +341,10 @@ def learn(
     force: Annotated[
         bool, typer.Option("--force", help="Virtual learning: replace an earlier run's OUT and state (never an input).")
     ] = False,
+    refine: Annotated[
+        bool, typer.Option("--refine", help="Insert straight-feed points on the path at corners and after rapids where"
+                           " the first run shows error no end point can shape (learning.refine in the profile).")
+    ] = False,
     cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
@@ -356,7 +360,7 @@ def learn(
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
                        log_period_s=log_period, points_reach_mm=points_reach, log_columns=log_columns,
                        log_offset=_parse_offset(log_offset), force=force,
-                       cutting_below_z_mm=cutting_below_z)
+                       cutting_below_z_mm=cutting_below_z, refine=refine)
     console = _console()
     try:
         if as_json or log is not None or points is not None:

@@ -28,7 +28,7 @@ from ilcnc.logs import AxisLog
 from ilcnc.machine_errors import ErrorSources
 from ilcnc.plan import Reference, plan_program
 from ilcnc.profile import MachineProfile
-from ilcnc.program.model import Program
+from ilcnc.program.model import MOVE_LINE, Program
 
 __all__ = ["SimulationResult", "simulate_program"]
 
@@ -72,6 +72,7 @@ class SimulationResult:
     shares: dict[str, dict[str, float]] = field(default_factory=dict)
     air_stats: dict[str, float] = field(default_factory=lambda: {"max": 0.0, "mean": 0.0, "rms": 0.0})
     cutting: CuttingRule = field(default_factory=lambda: CuttingRule(None, "none"))
+    worst_at: dict[str, int] | None = None  # command and line of the worst sample on the judged path
 
     @property
     def cycle_time_s(self) -> float:
@@ -86,9 +87,12 @@ class SimulationResult:
         return self.reference.period_s
 
     def worst(self, program: Program) -> dict[str, int]:
-        """Command index and source line of the worst sample (of ``program``'s path)."""
+        """Command index and source line of the worst sample (of ``program``'s path; of the judged path, the
+        ``against`` program's, when the run had one)."""
         if self.worst_sample < 0:
             return {"k": -1, "line": 0}
+        if self.worst_at is not None:
+            return dict(self.worst_at)
         seg = int(self.error.seg[self.worst_sample])
         if seg < 0:
             seg = int(self.reference.move[self.worst_sample])
@@ -162,7 +166,7 @@ def simulate_program(
 
     program.require_complete()
     target = against if against is not None else program
-    _check_against(program, against)
+    move_map = _check_against(program, against)
     _check_travel(program, profile)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -193,11 +197,15 @@ def simulate_program(
     # drawing's by their corrections
     slack: Any = profile.planner.corner_tolerance_mm
     if against is not None:
-        off = np.maximum(np.linalg.norm(program.moves.start_mm - target.moves.start_mm, axis=1),
-                         np.linalg.norm(program.moves.end_mm - target.moves.end_mm, axis=1))
-        slack = slack + np.nan_to_num(off)
+        slack = slack + against_slack_mm(program, target, move_map)
     reach = {"reference_mm": ref.pos_mm, "reference_slack_mm": slack}
+    # the samples' moves on the target's path (a refined program's pieces on the moves they split)
+    on_target = ref.move if move_map is None else np.where(ref.move >= 0, move_map[np.maximum(ref.move, 0)], -1).astype(
+        ref.move.dtype)
     shares: dict[str, dict[str, float]] = {}
+    if sources.enabled and move_map is not None:
+        raise InputError(against.path if against is not None else None, None, "--against a program with fewer points"
+                         " (a refined output) is not modelled with geometric or cutting errors on")
     if sources.enabled:
         t0 = time.perf_counter()
         if progress:
@@ -215,14 +223,18 @@ def simulate_program(
     t0 = time.perf_counter()
     if progress:
         progress("contour")
-    err = contour_error(path, act, ref.move, **reach)  # the hint: the reference's move (clipped to >= 0 there)
+    err = contour_error(path, act, on_target, **reach)  # the hint: the reference's move (clipped to >= 0 there)
     timings["contour"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     acc = FeedStats()
-    feed = acc.add(ref.move, classes, err.dist_mm)
+    feed = acc.add(on_target, classes, err.dist_mm)
     stats, worst = acc.result()
     timings["stats"] = time.perf_counter() - t0
-    return SimulationResult(ref, act, err, feed, stats, worst, timings, shares, acc.air_result(), rule)
+    worst_at = None
+    if against is not None and worst >= 0:
+        seg = int(err.seg[worst]) if err.seg[worst] >= 0 else int(on_target[worst])
+        worst_at = {"k": int(target.moves.command[seg]), "line": int(target.moves.line[seg])}
+    return SimulationResult(ref, act, err, feed, stats, worst, timings, shares, acc.air_result(), rule, worst_at)
 
 
 
@@ -325,15 +337,51 @@ def _feed_values(move, cls, dist, feed, acc, offset):  # pragma: no cover - comp
             acc[r, 5] = t
 
 
-def _check_against(program: Program, against: Program | None) -> None:
-    """Refuse an ``against`` program that is not the same part as ``program`` (only coordinates may differ)."""
+def _check_against(program: Program, against: Program | None) -> NDArray[np.int64] | None:
+    """Refuse an ``against`` program that is not the same part as ``program``; return the move map.
+
+    The same part: the same moves, only coordinates differ; or ``program`` is a refined one (``learn
+    --refine``) whose inserted straight feeds, marked on their lines, split moves of ``against``: the
+    same path with more points. Returns, for a refined ``program``, the move of ``against`` each of its
+    moves lies on (an inserted piece belongs to the move its line precedes); else ``None``.
+    """
     if against is None:
-        return
+        return None
     against.require_complete()
-    if len(against.moves) != len(program.moves) or not np.array_equal(against.moves.kind, program.moves.kind):
-        raise InputError(against.path, None,
-                         f"--against program has {len(against.moves)} moves, {program.path.name} has "
-                         f"{len(program.moves)}: it is not the same part (only coordinates may differ)")
+    if len(against.moves) == len(program.moves) and np.array_equal(against.moves.kind, program.moves.kind):
+        return None
+    from ilcnc.program.insert import inserted_moves
+
+    ins = inserted_moves(program)
+    own = np.flatnonzero(~ins)
+    if ins.any() and own.size == len(against.moves) and np.array_equal(program.moves.kind[own], against.moves.kind) \
+            and np.all(program.moves.kind[ins] == MOVE_LINE):
+        # an inserted piece precedes the move it splits: it maps to the next move that is not inserted
+        nxt = np.searchsorted(own, np.arange(len(program.moves)))
+        if nxt.max() < own.size and np.all(against.moves.kind[nxt[ins]] == MOVE_LINE):
+            return nxt.astype(np.int64)
+    raise InputError(against.path, None,
+                     f"--against program has {len(against.moves)} moves, {program.path.name} has "
+                     f"{len(program.moves)}{f' ({int(ins.sum())} inserted by ilcnc refine)' if ins.any() else ''}: it"
+                     " is not the same part (only coordinates may differ, or refined points be added)")
+
+
+def against_slack_mm(program: Program, target: Program, move_map: NDArray[np.int64] | None) -> NDArray[np.float64]:
+    """How far each move of ``target`` may lie from ``program``'s (their corrections), mm per target move."""
+    if move_map is None:
+        off = np.maximum(np.linalg.norm(program.moves.start_mm - target.moves.start_mm, axis=1),
+                         np.linalg.norm(program.moves.end_mm - target.moves.end_mm, axis=1))
+        return np.nan_to_num(off)
+    # a piece's end against the target move it lies on: the distance from that segment
+    a, b = target.moves.start_mm[move_map], target.moves.end_mm[move_map]
+    p = program.moves.end_mm
+    d = b - a
+    dd = np.einsum("ij,ij->i", d, d)
+    t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
+    dist = np.linalg.norm(p - (a + t[:, None] * d), axis=1)
+    off = np.zeros(len(target.moves))
+    np.maximum.at(off, move_map, np.nan_to_num(dist))
+    return off
 
 
 def _check_travel(program: Program, profile: MachineProfile) -> None:

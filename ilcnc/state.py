@@ -207,7 +207,8 @@ class LearnState:
 
     def read_corrections(self, entry: IterationEntry) -> NDArray[np.float64]:
         arr = self.read_array(entry.corrections, 4)
-        n = int(self.part["commands"])
+        refined = self.part.get("refined") or {}
+        n = int(refined["commands"]) if refined.get("file") else int(self.part["commands"])  # the learning index
         if arr.shape[0] != n:
             raise StateError(self.file(entry.corrections), None, f"damaged state file: {arr.shape[0]} commands, part has {n}")
         return arr[:, 1:4]

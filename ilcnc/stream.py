@@ -141,14 +141,14 @@ def simulate_streamed(
     from ilcnc.air import profile_move_classes
     from ilcnc.contour import PathGeometry, contour_error
     from ilcnc.drives import DriveStream
-    from ilcnc.simulate import FeedStats, _check_against, _check_travel
+    from ilcnc.simulate import FeedStats, _check_against, _check_travel, against_slack_mm
 
     why = stream_unsupported(profile, "path")
     if why:
         raise ValueError(why)
     program.require_complete()
     target = against if against is not None else program
-    _check_against(program, against)
+    move_map = _check_against(program, against)
     _check_travel(program, profile)
     if progress:
         progress("plan")
@@ -158,9 +158,7 @@ def simulate_streamed(
     rule, classes = profile_move_classes(target, profile)
     slack: Any = profile.planner.corner_tolerance_mm
     if against is not None:
-        off = np.maximum(np.linalg.norm(program.moves.start_mm - target.moves.start_mm, axis=1),
-                         np.linalg.norm(program.moves.end_mm - target.moves.end_mm, axis=1))
-        slack = slack + np.nan_to_num(off)
+        slack = slack + against_slack_mm(program, target, move_map)
     timings = {"plan": 0.0, "drives": 0.0, "contour": 0.0, "stats": 0.0, "error": 0.0}
     sums = PathWeightedSums(path)
     feed_stats = FeedStats()
@@ -181,13 +179,15 @@ def simulate_streamed(
             drives = DriveStream(profile, ch.pos_mm[0])
         act = drives.step(ch.pos_mm)
         t1 = time.perf_counter()
-        err = contour_error(path, act, ch.move, reference_mm=ch.pos_mm, reference_slack_mm=slack)
+        on_target = ch.move if move_map is None else np.where(ch.move >= 0, move_map[np.maximum(ch.move, 0)],
+                                                              -1).astype(ch.move.dtype)
+        err = contour_error(path, act, on_target, reference_mm=ch.pos_mm, reference_slack_mm=slack)
         t2 = time.perf_counter()
         before = feed_stats.worst_sample
-        feed = feed_stats.add(ch.move, classes, err.dist_mm, ch.first_sample)
+        feed = feed_stats.add(on_target, classes, err.dist_mm, ch.first_sample)
         if feed_stats.worst_sample != before:
             j = feed_stats.worst_sample - ch.first_sample
-            seg = int(err.seg[j]) if err.seg[j] >= 0 else int(ch.move[j])
+            seg = int(err.seg[j]) if err.seg[j] >= 0 else int(on_target[j])
             worst_at = {"k": int(target.moves.command[seg]), "line": int(target.moves.line[seg])}
         t3 = time.perf_counter()
         sums.add(err, period, on_feed=feed, first_sample=ch.first_sample)

@@ -44,6 +44,7 @@ from ilcnc.learn import (
     learn_virtual,
     model_assisted_correction,
     program_with_corrections,
+    refine_for_learning,
 )
 from ilcnc.measure import path_position_mm
 from ilcnc.profile import MachineProfile, load_profile
@@ -141,6 +142,7 @@ class LearnRequest:
     log_offset: tuple[float, float, float] | None = None
     force: bool = False
     cutting_below_z_mm: float | None = None
+    refine: bool = False
 
 
 @dataclass(slots=True)
@@ -162,6 +164,7 @@ class LearnOutcome:
     air_commands: int = 0
     cutting_rule: str = ""
     cutting: dict[str, Any] | None = None
+    refined: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -177,6 +180,7 @@ class LearnOutcome:
             "frozen_commands": self.frozen,
             "air_commands": self.air_commands,
             "cutting_rule": self.cutting,
+            "refined": self.refined,
             "notes": self.notes,
         }
 
@@ -343,19 +347,30 @@ def _replacing(state_dir: Path, req: LearnRequest) -> Iterator[None]:
 
 def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, data: bytes, state: LearnState | None,
                  relation: str, progress: Callable[[int, int, str], None] | None, state_dir: Path) -> LearnOutcome:
+    notes: list[str] = []
+    refine = req.refine or profile.learning.refine.enabled == "on"
     if state is not None:
         where = req.program if relation == "original" else state.file(state.part["file"])
         original = read_program(where, default_units=profile.machine.units, data=state.read_original_bytes())
+        if req.refine and not state.part.get("refined"):
+            raise StateError(state.directory, None, "holds a run without refinement: --refine refines at the start of"
+                             " a run (the refined program is its learning index); start a new run with --force")
         best = state.best()
         u0 = state.read_corrections(best) if best is not None else None
         first = best.iteration if best is not None else 0
     else:
         original = read_program(req.program, default_units=profile.machine.units, data=data)
+        _out_suffix_matches(original, req.out)
+        refinement = refine_for_learning(original, profile) if refine else None  # before the state: a refusal makes none
         state = _new_state(state_dir, original, data, profile, profile_sha)
+        if refinement is not None:
+            _store_refinement(state, refinement)
+            notes.extend(refinement.notes())
         u0, first = None, 0
     _out_suffix_matches(original, req.out)
-    writer = _record_writer(state, original)
-    result = learn_virtual(original, profile, iterations=req.iterations, keep_runs=req.report is not None,
+    learning = _learning_program(state, original, profile)
+    writer = _record_writer(state, learning)
+    result = learn_virtual(learning, profile, iterations=req.iterations, keep_runs=req.report is not None,
                            initial_corrections_mm=u0, first_iteration=first, progress=progress, on_record=writer)
     best_rec = result.best_record
     out = _write_output(req, best_rec.text, original, state.part["sha256"], best_rec.iteration)
@@ -366,13 +381,36 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
     state.save()
     rule = result.cutting
     outcome = LearnOutcome("virtual", req.program, out, state.directory, [r.to_json() for r in result.iterations],
-                           result.status, result.message, result.clips, result.frozen, [],
+                           result.status, result.message, result.clips, result.frozen, notes,
                            reduction_rms=result.reduction("rms"), air_commands=result.air_commands,
                            cutting_rule="" if rule is None else rule.describe(),
-                           cutting=None if rule is None else rule.to_json())
+                           cutting=None if rule is None else rule.to_json(), refined=state.part.get("refined"))
     if req.report is not None:
-        outcome.report_files = _report_virtual(req, original, result, best_rec)
+        outcome.report_files = _report_virtual(req, learning, result, best_rec)
     return outcome
+
+
+def _store_refinement(state: LearnState, refinement: Any) -> None:
+    """Keep the refined program in the state: it is the learning index of every iteration of the run."""
+    if refinement.inserted.n_inserted == 0:
+        state.part["refined"] = {"file": None, **refinement.to_json()}
+        return
+    name = f"refined{state.part['suffix']}"
+    sha = state.write_file(name, refinement.program.text.encode("latin-1"))
+    state.part["refined"] = {"file": name, "sha256": sha, "commands": refinement.program.n_commands,
+                             **refinement.to_json()}
+
+
+def _learning_program(state: LearnState, original: Program, profile: MachineProfile) -> Program:
+    """The program whose commands the run learns: the refined one when the run was refined, else the original."""
+    ref = state.part.get("refined")
+    if not ref or not ref.get("file"):
+        return original
+    data = read_bytes(state.file(ref["file"]))
+    if sha256_bytes(data) != ref["sha256"]:
+        raise StateError(state.file(ref["file"]), None, "changed since ilcnc wrote it (hash mismatch): the learning"
+                         " state is damaged")
+    return read_program(original.path, default_units=original.units, data=data)
 
 
 def _report_virtual(req: LearnRequest, original: Program, result: Any, best_rec: IterationRecord) -> list[Path]:

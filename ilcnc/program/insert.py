@@ -49,7 +49,10 @@ from ilcnc.program.model import (
 )
 from ilcnc.program.rewrite import format_number, spelling
 
-__all__ = ["InsertResult", "InsertedLine", "SkippedMove", "insert_points", "required_decimals"]
+__all__ = ["MARKER", "InsertResult", "InsertedLine", "SkippedMove", "insert_points", "inserted_moves", "required_decimals"]
+
+#: The trailing comment of every inserted line.
+MARKER = "ilcnc refine"
 
 _AXES = "XYZ"
 _UNSAFE_FLAGS = {
@@ -787,3 +790,10 @@ def reread(program: Program, text: str) -> Program:
     from ilcnc.program.gcode import read_gcode
 
     return read_gcode(Path(program.path), data, default_units=program.units, dialect=program.dialect)
+
+
+def inserted_moves(program: Program, marker: str = MARKER) -> NDArray[np.bool_]:
+    """Which moves of ``program`` are on lines that :func:`insert_points` inserted (their marker comment), (M,)."""
+    lines = np.unique(program.moves.line)
+    marked = [int(ln) for ln in lines.tolist() if ln > 0 and marker in _line_text(program, int(ln))[1]]
+    return np.isin(program.moves.line, marked)
