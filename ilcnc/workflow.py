@@ -506,6 +506,9 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         original = read_program(req.program if relation == "original" else state.file(state.part["file"]),
                                 default_units=profile.machine.units, data=state.read_original_bytes())
         _out_suffix_matches(original, req.out)
+        # a refined run (refined on the virtual CNC) learns its refined commands on the machine too: its
+        # programs are judged against the refined program, which runs the original's path
+        original = _learning_program(state, original, profile)
         if state.status == "diverged":
             best = state.best()
             raise StateError(state.path, None, "this learning run stopped because the error grew twice: keep running"
@@ -663,6 +666,9 @@ def learn_part(req: LearnRequest, *, progress: Callable[[int, int, str], None] |
     profile = load_profile(req.profile).with_cutting_top(req.cutting_below_z_mm)
     profile_sha = sha256_bytes(read_bytes(req.profile))
     data = read_bytes(req.program)
+    if req.refine and (req.log is not None or req.points is not None):
+        raise InputError(None, None, "--refine with --log/--points is not built yet: a measured run learns the"
+                         " program's own commands; refinement runs on the virtual CNC (learn --refine without --log)")
     if req.force and (req.log is not None or req.points is not None):
         raise InputError(None, None, "--force starts a new virtual run; a step from --log/--points continues its --state")
     fresh = req.force or req.state is None or not LearnState.exists(req.state)

@@ -138,6 +138,10 @@ def test_bad_refine_settings_and_the_cap_are_refused_leaving_nothing(tmp_path: P
     code, msg = _run("learn", OWN / "square.ngc", "--profile", capped, "--out", tmp_path / "b.ngc", "--refine")
     assert code == 1 and "learning.refine.max_lines = 3" in msg and msg.strip().startswith("error: ")
     assert not (tmp_path / "b.ngc").exists() and not (tmp_path / "b.ngc.state").exists()
+    # a measured step does not refine (yet): said, not silently ignored
+    code, msg = _run("learn", OWN / "square.ngc", "--profile", MILL, "--out", tmp_path / "d.ngc", "--log",
+                     tmp_path / "none.csv", "--state", tmp_path / "d.state", "--refine")
+    assert code == 1 and "--refine with --log/--points is not built yet" in msg and not (tmp_path / "d.state").exists()
     on = _profile_with(tmp_path, enabled="on")
     code, msg = _run("learn", OWN / "square.ngc", "--profile", on, "--out", tmp_path / "c.ngc", "--iterations", "1",
                      "--json")

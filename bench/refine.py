@@ -1,0 +1,55 @@
+"""The refinement acceptance of issue 18 on the virtual CNC, as a user runs it (on demand, not a test).
+
+For each program: ``ilcnc learn PROG --profile configs/example-mill.yaml --out OUT --refine --iterations 5``,
+then the output judged independently by ``ilcnc simulate OUT --against PROG`` and the original by
+``ilcnc simulate PROG``; prints the cutting moves' max and RMS before and after, their change, and the
+cycle time change, without and with ``--refine`` (the same run, so the ratios compare like with like)::
+
+    python bench/refine.py [PROG ...]          # default: the four programs of the issue
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PROFILE = ROOT / "configs" / "example-mill.yaml"
+DEFAULT = [ROOT / "samples" / "third_party" / "contour" / "Gates_combined_R12.nc", ROOT / "samples" / "compass.ngc",
+           ROOT / "samples" / "third_party" / "contour" / "locket_outside.ngc", ROOT / "samples" / "jsdc.gcode"]
+
+
+def _ilcnc(*args: object) -> dict:
+    r = subprocess.run([sys.executable, "-m", "ilcnc", *map(str, args), "--json"], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"ilcnc {' '.join(map(str, args))}: {r.stderr.strip()}")
+    return json.loads(r.stdout)
+
+
+def main(argv: list[str]) -> None:
+    programs = [Path(a) for a in argv] or DEFAULT
+    resolution_um = 1.0  # configs/example-mill.yaml machine.resolution_mm
+    print(f"{'program':28s} {'mode':8s} {'max um':>16s} {'max':>6s} {'RMS um':>14s} {'RMS':>6s} {'cycle':>7s} {'lines+':>6s}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for prog in programs:
+            base = _ilcnc("simulate", prog, "--profile", PROFILE)
+            b = base["contour_error_mm"]
+            for mode in ("plain", "refine"):
+                out = Path(tmp) / f"{mode}-{prog.stem}{prog.suffix}"
+                extra = ["--refine"] if mode == "refine" else []
+                run = _ilcnc("learn", prog, "--profile", PROFILE, "--out", out, "--iterations", 5, *extra)
+                judged = _ilcnc("simulate", out, "--profile", PROFILE, "--against", prog)
+                a = judged["contour_error_mm"]
+                inserted = (run.get("refined") or {}).get("inserted_lines", 0)
+                floor = " (at the floor)" if a["max"] * 1e3 <= 2 * resolution_um else ""
+                print(f"{prog.name[:28]:28s} {mode:8s} {b['max'] * 1e3:7.2f} -> {a['max'] * 1e3:6.2f}"
+                      f" {a['max'] / b['max'] - 1:+6.0%} {b['rms'] * 1e3:6.2f} -> {a['rms'] * 1e3:5.2f}"
+                      f" {a['rms'] / b['rms'] - 1:+6.0%} {judged['cycle_time_s'] / base['cycle_time_s'] - 1:+7.2%}"
+                      f" {inserted:6d}{floor}", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
