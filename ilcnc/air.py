@@ -137,5 +137,13 @@ def profile_move_classes(program: Program, profile: MachineProfile) -> tuple[Cut
 
 
 def air_command_mask(program: Program, profile: MachineProfile) -> NDArray[np.bool_]:
-    """Commands in the air under the profile's rule, shape (K,)."""
-    return air_commands(program, profile_move_classes(program, profile)[1])
+    """Commands whose end point is in the air under the profile's rule, shape (K,): air moves, and the
+    retracts and approaches whose end lies above the stock top (correcting a point in the air shapes no cut)."""
+    rule, classes = profile_move_classes(program, profile)
+    air = air_commands(program, classes)
+    if rule.top_z_mm is not None:
+        mv = program.moves
+        cm = program.command_moves
+        end_z = mv.end_mm[cm, 2] - mv.offset_mm[cm, 2]
+        air |= end_z > rule.top_z_mm + profile.machine.resolution_mm
+    return air

@@ -109,16 +109,31 @@ def export(
     corrections: Annotated[Path | None, typer.Option("--corrections", help="Corrections CSV k,dx,dy,dz (mm).")] = None,
     profile: Annotated[Path | None, typer.Option("--profile", help="Machine profile (resolution, default units).")] = None,
     decimals: Annotated[int | None, typer.Option("--decimals", min=0, max=8, help="Least decimals of rewritten numbers.")] = None,
+    state: Annotated[
+        Path | None, typer.Option("--state", help="Learning state of PROGRAM: write the program of one of its iterations.")
+    ] = None,
+    iteration: Annotated[
+        int | None, typer.Option("--iteration", min=0, help="With --state: which iteration (default: the run's output).")
+    ] = None,
 ) -> None:
     """Write the program (optionally corrected) in the dialect of OUT's suffix.
 
-    With no corrections and the same dialect the output is byte-identical to the input.
+    With no corrections and the same dialect the output is byte-identical to the input; with --state, the
+    program of an iteration of the run, byte for byte as the run wrote it (refined lines included).
     """
     from ilcnc import export as export_mod
 
     try:
-        result = export_mod.export_program(program, out, corrections_path=corrections, profile_path=profile,
-                                           min_decimals=decimals)
+        if state is not None:
+            if corrections is not None:
+                raise InputError(corrections, None, "--corrections and --state: the state holds each iteration's"
+                                 " corrections already; give one of them")
+            result = export_mod.export_iteration(program, out, state, iteration=iteration, profile_path=profile)
+        elif iteration is not None:
+            raise InputError(None, None, "--iteration needs --state")
+        else:
+            result = export_mod.export_program(program, out, corrections_path=corrections, profile_path=profile,
+                                               min_decimals=decimals)
     except IlcncError as exc:
         _fail(exc)
     typer.echo(f"wrote {result.path} ({result.mode}; {result.changed_commands} commands corrected, "
@@ -409,7 +424,8 @@ def _print_learning(outcome, console) -> None:
     if outcome.cutting_rule:
         console.print(f"air moves: {outcome.cutting_rule}")
     if outcome.air_commands:
-        console.print(f"{outcome.air_commands} G01 commands in the air are kept as programmed (learning.air_moves: keep)")
+        console.print(f"{outcome.air_commands} G01 commands in the air or ending there (retracts, approaches) are kept as"
+                      " programmed (learning.air_moves: keep)")
     for c in outcome.clips[:20]:
         console.print(f"clipped: k={c.k} line {c.line} {c.axis.upper()} {c.wanted_mm:+.4f} → {c.applied_mm:+.4f} mm")
     if len(outcome.clips) > 20:

@@ -53,8 +53,11 @@ def export_program(
     corrections_path: Path | None = None,
     profile_path: Path | None = None,
     min_decimals: int | None = None,
+    data: bytes | None = None,
 ) -> ExportResult:
     """Write ``src`` to ``out`` in the dialect of ``out``'s suffix, applying corrections.
+
+    ``data``: the program's bytes when they are not read from ``src`` (an iteration kept in a state).
 
     Raises
     ------
@@ -67,7 +70,8 @@ def export_program(
         from ilcnc.profile import load_profile
 
         default_units = load_profile(profile_path).machine.units
-    data = read_bytes(src)
+    if data is None:
+        data = read_bytes(src)
     program = read_program(src, default_units=default_units, data=data)
     same = (program.dialect == "heidenhain") == (family == "heidenhain")
     protect = (src,) + ((corrections_path,) if corrections_path else ())
@@ -119,3 +123,34 @@ def _corrected_moves(program, corr):
     mv.start_mm = start
     return mv
 
+
+
+def export_iteration(src: Path, out: Path, state_dir: Path, *, iteration: int | None = None,
+                     profile_path: Path | None = None) -> ExportResult:
+    """Write the program of one iteration of a learning state (``export --state``), byte for byte.
+
+    ``src`` must be the state's original program or one of its outputs; ``iteration`` defaults to the one the
+    run wrote as its output (else the last). In the program's own dialect the bytes are the state's, checked
+    against their recorded hash; in the other dialect the iteration's program is converted.
+    """
+    from ilcnc.errors import StateError
+    from ilcnc.state import LearnState, sha256_bytes
+
+    st = LearnState.load(state_dir)
+    sha = sha256_bytes(read_bytes(src))
+    if sha != st.part["sha256"] and st.find_program(sha) is None:
+        raise StateError(src, None, f"is not the original nor an output of the learning run in {state_dir}"
+                         f" ({st.part['name']})")
+    if not st.iterations:
+        raise StateError(state_dir, None, "holds no iteration yet")
+    if iteration is None:
+        with_output = [e for e in st.iterations if e.output]
+        entry = with_output[-1] if with_output else st.iterations[-1]
+    else:
+        found = [e for e in st.iterations if e.iteration == iteration]
+        if not found:
+            have = ", ".join(str(e.iteration) for e in st.iterations)
+            raise StateError(state_dir, None, f"has no iteration {iteration} (it has {have})")
+        entry = found[0]
+    raw = st.read_program_bytes(entry)
+    return export_program(st.file(entry.program), out, profile_path=profile_path, data=raw)

@@ -171,7 +171,22 @@ def measure_log(
         hint = guess_hints(PathGeometry.from_moves(original.moves), act)
         mv_or_first = np.maximum.accumulate(hint)
         mv = mv_or_first
-    err = contour_error(path, act, hint)
+    # the search reaches as far along the path as the machine lags behind its commanded position (as the
+    # virtual CNC's does): without it, a sample lagging behind a sharp corner can be matched to the wrong side
+    # of the corner (issue 25). The commanded position may leave its move by the blend (the profile's corner
+    # tolerance, the program's G64 P) and lies off the drawing by the corrections of the program that ran.
+    reach: dict[str, Any] = {}
+    ref_log = np.asarray(log.ref_mm, dtype=np.float64)
+    if log.has_z is False:
+        ref_log = ref_log.copy()
+        ref_log[:, 2] = act[:, 2]
+    if np.all(np.isfinite(ref_log)) and len(ran.moves) == len(original.moves):
+        from ilcnc.simulate import against_slack_mm
+
+        blend = ran.moves.blend_tol_mm
+        tol = float(np.max(blend[np.isfinite(blend) & (blend > 0)], initial=profile.planner.corner_tolerance_mm))
+        reach = {"reference_mm": ref_log, "reference_slack_mm": tol + against_slack_mm(ran, original, None)}
+    err = contour_error(path, act, hint, **reach)
     feed = (ran.moves.kind[mv_or_first] != MOVE_RAPID) & (mv >= 0)
     gate = measurement_gate_mm(profile)
     d = np.where(feed, err.dist_mm, np.nan)

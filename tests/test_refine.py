@@ -87,6 +87,16 @@ def test_refined_output_keeps_every_line_and_is_judged_against_the_original(tmp_
     assert st.part["refined"]["file"] and st.part["refined"]["commands"] == read_program(
         st.file(st.part["refined"]["file"])).n_commands
     assert st.file(st.iterations[0].program).read_bytes() == st.file(st.part["refined"]["file"]).read_bytes()
+    # export --state reproduces every iteration's program byte for byte, and by default the run's output
+    for e in st.iterations:
+        code, msg = _run("export", src, "--out", tmp_path / f"e{e.iteration}.gcode", "--state", st.directory,
+                         "--iteration", e.iteration)
+        assert code == 0, msg
+        assert (tmp_path / f"e{e.iteration}.gcode").read_bytes() == st.file(e.program).read_bytes()
+    code, msg = _run("export", src, "--out", tmp_path / "e.gcode", "--state", st.directory)
+    assert code == 0 and (tmp_path / "e.gcode").read_bytes() == out.read_bytes()
+    code, msg = _run("export", REPO / "samples" / "compass.ngc", "--out", tmp_path / "x.gcode", "--state", st.directory)
+    assert code == 1 and "is not the original nor an output" in msg
     # judged by simulate against the original drawing: the same part, the figures learn reported
     code, msg = _run("simulate", out, "--profile", MILL, "--against", src, "--json")
     assert code == 0, msg

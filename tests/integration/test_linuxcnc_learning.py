@@ -10,11 +10,13 @@ file lacks the program end LinuxCNC insists on, so the test runs a copy with
 from __future__ import annotations
 
 import re
-from itertools import pairwise
+import shutil
 
 import pytest
 
 from ilcnc.cli import app
+from ilcnc.learn import best_stats, grew
+from ilcnc.profile import load_profile
 from ilcnc.state import LearnState
 from tests.integration._lcnc import PROFILE, REPO, cli_json, needs_linuxcnc, runner
 
@@ -35,26 +37,39 @@ def loop(tmp_path_factory) -> dict:
     for i in range(1, 5):
         out = d / f"jsdc.ilc{i}.ngc"
         learned.append(cli_json("learn", part, "--profile", PROFILE, "--log", log, "--state", state, "--out", out))
+        if i == 1:  # a copy of the state while it waits for its next log (the run may stop later: the guard)
+            shutil.copytree(state, d / "state-open")
         log = d / f"run{i}.csv"
         # LinuxCNC must accept every compensated program (a refusal raises and fails the test)
         cli_json("linuxcnc", "run", out, "--log", log, "--time-scale", 8)
         outs.append(out)
         logs.append(log)
     last = cli_json("learn", part, "--profile", PROFILE, "--log", log, "--state", state, "--out", d / "jsdc.ilc5.ngc")
-    return {"dir": d, "part": part, "state": state, "logs": logs, "outs": outs, "learned": learned, "last": last}
+    return {"dir": d, "part": part, "state": state, "logs": logs, "outs": outs, "learned": learned, "last": last,
+            "open_state": d / "state-open"}
 
 
 def test_four_iterations_on_linuxcnc_reduce_the_contour_error(loop) -> None:
     its = loop["last"]["iterations"]
-    rms = [it["contour_error_mm"]["rms"] for it in its[:5]]
-    assert all(it["kept"] for it in its[:5]), its
-    assert all(b < a for a, b in pairwise(rms)), rms
-    # measured 2026-11-23 with the shipped profile (3 model-assisted steps per measured one): 41.61 -> 35.29 ->
-    # 33.48 -> 32.32 -> 31.36 µm (-24.6 %; measured steps only: -15 %); jsdc's remaining error sits at the
-    # corners of its long transit moves (docs/papers.md, section "Real controller")
-    assert rms[4] < 0.9 * rms[0], rms
+    measured = [it for it in its[:5] if it["contour_error_mm"]]
+    assert len(measured) == 5
+    # the guard judges the cutting moves (ilcnc.air): an iteration is kept exactly when neither their max nor
+    # their RMS grew past the best kept before it. jsdc's cutting max sits where LinuxCNC blends a slot's last
+    # cut into its G1 retract (~340 µm at Z -0.6, the tool rising early): no end point shapes it and it moves a
+    # few % from run to run, so an iteration may be refused there (measured 2026-12-01: 355.4 -> 343.3 ->
+    # 336.9 -> 345.8 (refused) µm max; RMS 34.10 -> 28.26 -> 27.05 -> 26.53 µm). Before the cutting moves
+    # were judged apart, that max hid under the air moves' (448 µm, a G1 at Z1) and every iteration was kept.
+    res = load_profile(PROFILE).machine.resolution_mm
+    for i, it in enumerate(measured[1:], start=1):
+        best = best_stats([x["contour_error_mm"] for x in measured[:i] if x["kept"]])
+        assert it["kept"] == (not grew(it["contour_error_mm"], best, resolution_mm=res)), (i, its)
+    kept = [it["contour_error_mm"]["rms"] for it in measured if it["kept"]]
+    assert len(kept) >= 3 and kept[1] < kept[0], its
+    # measured 2026-11-23 (all feed moves, 3 model-assisted steps per measured one): 41.61 -> 31.36 µm (-24.6 %);
+    # 2026-12-01, cutting moves: 34.10 -> 26.53 µm (-22 %)
+    assert min(kept) < 0.9 * measured[0]["contour_error_mm"]["rms"], its
     st = LearnState.load(loop["state"])
-    assert [e.iteration for e in st.iterations] == [0, 1, 2, 3, 4, 5]
+    assert [e.iteration for e in st.iterations][:5] == [0, 1, 2, 3, 4]
     assert all(e.measured_from["kind"] == "log" for e in st.iterations[:5])
 
 
@@ -83,13 +98,16 @@ def test_compensated_programs_differ_only_in_g01_coordinates(loop) -> None:
 
 
 def test_a_log_cut_off_mid_run_is_refused_and_the_state_kept(loop, tmp_path) -> None:
-    before = (loop["state"] / "state.json").read_bytes()
-    full = loop["logs"][-1].read_text().splitlines()
+    # the state as it waited for the log of iteration 1 (copied then: the loop's own state may have stopped since)
+    state = tmp_path / "state"
+    shutil.copytree(loop["open_state"], state)
+    before = (state / "state.json").read_bytes()
+    full = loop["logs"][1].read_text().splitlines()
     cut = tmp_path / "cut.csv"
     cut.write_text("\n".join(full[: len(full) // 3]) + "\n")
     res = runner.invoke(app, ["learn", str(loop["part"]), "--profile", str(PROFILE), "--log", str(cut), "--state",
-                              str(loop["state"]), "--out", str(tmp_path / "x.ngc")])
+                              str(state), "--out", str(tmp_path / "x.ngc")])
     assert res.exit_code == 1 and res.output.startswith("error: ") and len(res.output.strip().splitlines()) == 1
     assert "cut.csv" in res.output
-    assert (loop["state"] / "state.json").read_bytes() == before
-    LearnState.load(loop["state"])
+    assert (state / "state.json").read_bytes() == before
+    LearnState.load(state)
