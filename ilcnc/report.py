@@ -673,3 +673,62 @@ def write_report(out_dir: Path, *, program_name: str, path_mm: np.ndarray, runs:
                                   n_changed=n_changed, n_clipped=n_clipped, max_corr_mm=max_corr, images=images))
     put("commands.csv", commands_text)
     return written
+
+
+def plot_refined_corner(*, program_name: str, path_mm: np.ndarray, first: ReportRun, best: ReportRun,
+                        commands_mm: np.ndarray, inserted: NDArray[np.bool_], radius_mm: float = 1.0) -> bytes:
+    """The worst spot of the first run, zoomed: the drawing, the refined and corrected end points (inserted
+    ones marked), and the actual path of the first and the best run with their deviation magnified.
+
+    Parameters
+    ----------
+    path_mm : ndarray (M, 3)
+        The drawing as a polyline (NaN rows between pieces), mm.
+    first, best : ReportRun
+        The first run and the output's run, with actual positions, foot points and contour errors.
+    commands_mm : ndarray (K, 3)
+        End points of the output's commands (refined and corrected), mm.
+    inserted : ndarray (K,) bool
+        Which commands the refinement inserted.
+    radius_mm : float
+        Half the side of the zoomed square, mm.
+    """
+    assert first.actual_mm is not None and first.foot_mm is not None and first.contour_mm is not None
+    e = np.where(_valid_mask(first.actual_mm.shape[0], first.feed_mask), first.contour_mm, np.nan)
+    w = int(np.nanargmax(e))
+    centre = first.foot_mm[w]
+    ext = _extent(path_mm)
+    a0, a1 = _plane_axes(ext)
+    worst = max(float(np.nanmax(e)), 1e-6)
+    mag = _auto_magnify(2.0 * radius_mm, worst) * 4.0  # the zoom: the deviation shows at ~20 % of the window
+
+    def near(p: np.ndarray) -> NDArray[np.bool_]:
+        return np.all(np.abs(p[:, [a0, a1]] - centre[[a0, a1]]) <= 1.5 * radius_mm, axis=1)
+
+    fig = _new_figure(7.5, 7.5)
+    ax = fig.add_subplot()
+    pm = path_mm.copy()
+    pm[~near(np.nan_to_num(pm, nan=1e9))] = np.nan
+    ax.plot(pm[:, a0], pm[:, a1], color="0.25", lw=1.0, label="drawing")
+    for run, colour, name in ((first, "C0", "first run"), (best, "C3", f"iteration {best.iteration}")):
+        if run.actual_mm is None or run.foot_mm is None:
+            continue
+        sel = near(run.foot_mm) & _valid_mask(run.actual_mm.shape[0], run.feed_mask)
+        f = run.foot_mm[sel]
+        a = f + mag * (run.actual_mm[sel] - f)
+        ax.plot(a[:, a0], a[:, a1], ".", ms=1.5, color=colour, label=f"{name}: actual, deviation ×{_fmt_mag(mag)}")
+    c = near(commands_mm)
+    ax.plot(commands_mm[c & ~inserted, a0], commands_mm[c & ~inserted, a1], "s", ms=5, mfc="none", mec="0.1",
+            label="end points of the program")
+    ax.plot(commands_mm[c & inserted, a0], commands_mm[c & inserted, a1], "x", ms=7, mew=1.5, color="C2",
+            label="inserted by the refinement")
+    ax.set_xlim(centre[a0] - radius_mm, centre[a0] + radius_mm)
+    ax.set_ylim(centre[a1] - radius_mm, centre[a1] + radius_mm)
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"{_AXES[a0]} / mm")
+    ax.set_ylabel(f"{_AXES[a1]} / mm")
+    ax.grid(True, lw=0.4, alpha=0.5)
+    fig.legend(loc="outside lower center", ncols=2, fontsize="small")
+    ax.set_title(f"{program_name}: the first run's worst spot ({1000.0 * worst:.2f} µm), zoomed\n"
+                 f"first {_stats_text(first)}\niteration {best.iteration}: {_stats_text(best)}", fontsize="small")
+    return _png(fig)

@@ -429,9 +429,21 @@ def _report_virtual(req: LearnRequest, original: Program, result: Any, best_rec:
     clipped = np.zeros(original.n_commands, bool)
     for c in result.clips:
         clipped[c.k] = True
-    return write_report(req.report, program_name=original.path.name, path_mm=_path_polyline(original), runs=runs,
-                        diff=_diff(original, best_rec.text, clipped), status=result.status, message=result.message,
-                        best_iteration=best_rec.iteration)
+    files = write_report(req.report, program_name=original.path.name, path_mm=_path_polyline(original), runs=runs,
+                         diff=_diff(original, best_rec.text, clipped), status=result.status, message=result.message,
+                         best_iteration=best_rec.iteration)
+    from ilcnc.program.insert import inserted_moves
+
+    ins = inserted_moves(original)[original.command_moves]
+    best_run = next((r for r in runs if r.iteration == best_rec.iteration), None)
+    if ins.any() and best_run is not None and runs[0].actual_mm is not None:
+        from ilcnc.report import plot_refined_corner
+
+        out_prog = read_program(original.path, default_units=original.units, data=best_rec.text.encode("latin-1"))
+        png = plot_refined_corner(program_name=original.path.name, path_mm=_path_polyline(original), first=runs[0],
+                                  best=best_run, commands_mm=out_prog.command_end_mm, inserted=ins)
+        files.append(write_atomic(req.report / "refined-corner.png", png))
+    return files
 
 
 def _path_polyline(program: Program) -> NDArray[np.float64]:

@@ -154,5 +154,6 @@ def test_bad_refine_settings_and_the_cap_are_refused_leaving_nothing(tmp_path: P
     assert code == 1 and "--refine with --log/--points is not built yet" in msg and not (tmp_path / "d.state").exists()
     on = _profile_with(tmp_path, enabled="on")
     code, msg = _run("learn", OWN / "square.ngc", "--profile", on, "--out", tmp_path / "c.ngc", "--iterations", "1",
-                     "--json")
+                     "--json", "--report", tmp_path / "rep")
     assert code == 0 and json.loads(msg)["refined"]["inserted_lines"] > 0
+    assert (tmp_path / "rep" / "refined-corner.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
