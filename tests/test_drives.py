@@ -557,15 +557,19 @@ def test_filter_deviation_of_zero_is_zero() -> None:
 def test_one_pass_columns_equal_axis_response(drive: object, monkeypatch: pytest.MonkeyPatch) -> None:
     # simulate_drives writes each column in one compiled pass (deflated filter or friction loop fed from the
     # reference), the axes in threads; axis_response is the whole-array path (lfilter / _run_loop): the same
-    # numbers, bit for bit
+    # recursion in two implementations (measured: bit for bit with numba 0.68 and scipy 1.17). A compiler may
+    # round a multiply-add once where the other rounds twice: at most a few eps |y| per step, carried on by
+    # the filter with its gain ||h||_1 (below 10 for these drives) -- 1000 eps max|y| bounds it with margin
     monkeypatch.setattr(drives, "_PARALLEL_SAMPLES", 0)
     ref = _circle(20.0, 2.5, 1.2) + np.array([100.0, -50.0])
     ref = np.column_stack([ref, np.linspace(3.0, -2.0, ref.shape[0])])
     base = default_profile()
     prof = dataclasses.replace(base, axes={k: dataclasses.replace(a, drive=drive) for k, a in base.axes.items()})
     out = simulate_drives(ref, prof)
+    tol = 1000.0 * np.finfo(float).eps * float(np.max(np.abs(ref)))
     for col in range(3):
-        np.testing.assert_array_equal(out[:, col], axis_response(drive, ref[:, col], prof.machine.servo_period_s))
+        np.testing.assert_allclose(out[:, col], axis_response(drive, ref[:, col], prof.machine.servo_period_s),
+                                   rtol=0.0, atol=tol)
 
 
 def test_one_pass_filter_refuses_non_finite_reference() -> None:
