@@ -906,21 +906,32 @@ def refine_for_learning(original: Program, profile: MachineProfile) -> Refinemen
     The refined program runs the original path (every inserted point on it within 0.05 µm per axis, checked
     by :func:`ilcnc.program.insert.insert_points` on the program read back).
     """
-    from ilcnc.plan import plan_program
-    from ilcnc.program import read_program
-    from ilcnc.program.insert import insert_points
-    from ilcnc.refine import plan_refinement
     from ilcnc.simulate import simulate_program
 
     original.require_complete()
     sim = simulate_program(original, profile)
-    _rule, classes = profile_move_classes(original, profile)
-    plan = plan_refinement(original, profile, dist_mm=sim.error.dist_mm, seg=sim.error.seg, u=sim.error.u,
-                           classes=classes)
     first = dict(sim.stats)
     t0 = float(sim.cycle_time_s)
+    dist, seg, u = sim.error.dist_mm, sim.error.seg, sim.error.u
     del sim
+    return refine_from_errors(original, profile, dist_mm=dist, seg=seg, u=u, first_stats=first, cycle_time_s=t0)
+
+
+def refine_from_errors(original: Program, profile: MachineProfile, *, dist_mm: NDArray[np.float64],
+                       seg: NDArray[np.int64], u: NDArray[np.float64], first_stats: dict[str, float],
+                       cycle_time_s: float | None = None) -> Refinement:
+    """Refine ``original`` where a run of it erred: the run's per-sample contour error (mm), the move of each
+    sample's foot and its path parameter (a virtual run, or the machine's log of the original program: no
+    extra machine run is needed); ``cycle_time_s`` the original's planned cycle time (planned when absent)."""
+    from ilcnc.plan import plan_program
+    from ilcnc.program import read_program
+    from ilcnc.program.insert import insert_points
+    from ilcnc.refine import plan_refinement
+
+    _rule, classes = profile_move_classes(original, profile)
+    plan = plan_refinement(original, profile, dist_mm=dist_mm, seg=seg, u=u, classes=classes)
+    t0 = float(plan_program(original, profile).duration_s) if cycle_time_s is None else float(cycle_time_s)
     res = insert_points(original, plan.points, min_decimals=profile.min_decimals(original.units))
     refined = read_program(original.path, default_units=original.units, data=res.text.encode("latin-1"))
     t1 = float(plan_program(refined, profile).duration_s) if res.n_inserted else t0
-    return Refinement(refined, plan, res, first, (t0, t1))
+    return Refinement(refined, plan, res, dict(first_stats), (t0, t1))

@@ -70,6 +70,8 @@ class Measurement:
     feed_mask: NDArray[np.bool_] | None = None
     notes: list[str] = field(default_factory=list)
     air_stats: dict[str, float] | None = None
+    seg: NDArray[np.int64] | None = None  # move of each sample's foot point (-1: none)
+    u: NDArray[np.float64] | None = None  # its path parameter (move + fraction)
 
 
 def _stats(d: NDArray[np.float64]) -> dict[str, float]:
@@ -220,7 +222,7 @@ def measure_log(
     _rule, classes = profile_move_classes(original, profile)
     air = classes[mv_or_first] == MOVE_AIR
     return Measurement("log", sig, _stats(np.where(air, np.nan, d)), act, err.dist_mm, err.signed_mm, err.foot_mm,
-                       path_position_mm(err), feed, notes, _stats(np.where(air, d, np.nan)))
+                       path_position_mm(err), feed, notes, _stats(np.where(air, d, np.nan)), err.seg, err.u)
 
 
 def path_position_mm(err: Any) -> NDArray[np.float64]:
@@ -405,3 +407,34 @@ def interpolate_along_path(
         e[ok] = (1.0 - w) * e[ka[ok]] + w * e[kb[ok]]
         filled[ok] = True
     return e, filled, float(reach_mm)
+
+
+def log_on_refined(log: AxisLog, original: Program, refined: Program, inserted: Any) -> AxisLog:
+    """The log of ``original`` read as a log of its refined program (:mod:`ilcnc.refine`): each sample's line
+    becomes the line of the piece its commanded position is on (the refined program plans the original's
+    path in the original's time, so its run is this run). ``inserted`` is the
+    :class:`ilcnc.program.insert.InsertResult` that made ``refined``."""
+    mv = sample_moves(log, original)
+    m = len(original.moves)
+    fr: list[list[float]] = [[] for _ in range(m)]
+    for x in inserted.inserted:
+        fr[x.move].append(float(x.fraction))
+    fr = [sorted(f) for f in fr]
+    n_ins = np.array([len(f) for f in fr], dtype=np.int64)
+    first = np.arange(m) + np.concatenate(([0], np.cumsum(n_ins)[:-1]))  # refined index of each move's first piece
+    if first[-1] + n_ins[-1] != len(refined.moves) - 1:
+        raise ValueError("the refined program is not the original with the inserted pieces")
+    piece = np.zeros(log.n_samples, dtype=np.int64)
+    ok = mv >= 0
+    split = ok & (n_ins[np.maximum(mv, 0)] > 0)
+    if split.any():
+        j = mv[split]
+        a, b = original.moves.start_mm[j], original.moves.end_mm[j]
+        d = b - a
+        ref = np.nan_to_num(np.asarray(log.ref_mm, dtype=np.float64)[split])
+        f = np.einsum("ij,ij->i", ref - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
+        piece[split] = [int(np.searchsorted(fr[jj], ff, side="right")) for jj, ff in zip(j.tolist(), f.tolist(), strict=True)]
+    new_mv = np.where(ok, first[np.maximum(mv, 0)] + piece, -1)
+    line = np.where(new_mv >= 0, refined.moves.line[np.maximum(new_mv, 0)], 0).astype(np.int64)
+    cmd = np.where(new_mv >= 0, refined.moves.command[np.maximum(new_mv, 0)], -1).astype(np.int64)
+    return AxisLog(log.t_s, cmd, line, log.ref_mm, log.act_mm)

@@ -45,6 +45,7 @@ from ilcnc.learn import (
     model_assisted_correction,
     program_with_corrections,
     refine_for_learning,
+    refine_from_errors,
 )
 from ilcnc.measure import path_position_mm
 from ilcnc.profile import MachineProfile, load_profile
@@ -390,6 +391,25 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
     return outcome
 
 
+def _refine_from_log(req: LearnRequest, profile: MachineProfile, original: Program) -> tuple[Any, Any]:
+    """The first measured step of a refined run: refine where the log of the original program erred (no extra
+    machine run), and that log read as a run of the refined program."""
+    from ilcnc.logs import read_log
+    from ilcnc.measure import log_on_refined, measure_log
+
+    assert req.log is not None
+    period = req.log_period_s if req.log_period_s is not None else profile.machine.servo_period_s
+    log = read_log(req.log, fmt=req.log_format, period_s=period, units=req.log_units, columns=req.log_columns,
+                   offset=req.log_offset)
+    meas = measure_log(log, original, original, profile, error_kind(profile), source=req.log, units=req.log_units)
+    assert meas.seg is not None and meas.u is not None and meas.contour_mm is not None and meas.feed_mask is not None
+    dist = np.where(meas.feed_mask, meas.contour_mm, np.nan)
+    refinement = refine_from_errors(original, profile, dist_mm=dist, seg=meas.seg, u=meas.u, first_stats=meas.stats)
+    if refinement.inserted.n_inserted == 0:
+        return refinement, log
+    return refinement, log_on_refined(log, original, refinement.program, refinement.inserted)
+
+
 def _store_refinement(state: LearnState, refinement: Any) -> None:
     """Keep the refined program in the state: it is the learning index of every iteration of the run."""
     if refinement.inserted.n_inserted == 0:
@@ -506,14 +526,25 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     assert source is not None
     src_bytes = read_bytes(source)
     src_sha = sha256_bytes(src_bytes)
+    refined_log = None
     if state is None:
         original = read_program(req.program, default_units=profile.machine.units, data=data)
         _out_suffix_matches(original, req.out)
+        refinement = None
+        if req.refine or (profile.learning.refine.enabled == "on" and req.log is not None):
+            refinement, refined_log = _refine_from_log(req, profile, original)  # refused before any state is made
         state = _new_state(req.state, original, data, profile, profile_sha)
         made.append(req.state)
+        first_data = data
+        if refinement is not None:
+            _store_refinement(state, refinement)
+            if refinement.inserted.n_inserted:
+                first_data = refinement.program.text.encode("latin-1")  # the refined program runs what ran
         name = f"iter-000{state.part['suffix']}"
-        sha = state.write_file(name, data)
-        state.iterations.append(IterationEntry(0, name, sha, state.write_corrections(0, np.zeros((original.n_commands, 3)))))
+        sha = state.write_file(name, first_data)
+        original = _learning_program(state, original, profile)  # the refined program when refined
+        state.iterations.append(IterationEntry(0, name, sha, state.write_corrections(0, np.zeros((original.n_commands,
+                                                                                                  3)))))
     else:
         original = read_program(req.program if relation == "original" else state.file(state.part["file"]),
                                 default_units=profile.machine.units, data=state.read_original_bytes())
@@ -533,6 +564,9 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     if entry is None:
         raise StateError(state.path, None, "no program is waiting for a measurement (the run has ended with status"
                          f" {state.status})")
+    if req.refine and refined_log is None:
+        raise StateError(state.directory, None, "--refine refines at the start of a run (from the log of the original"
+                         " program); this state holds a run already")
     if relation == "output" and entry_of_prog is not None and entry_of_prog is not entry:
         raise StateError(req.program, None, f"is the program of iteration {entry_of_prog.iteration}, but the state waits"
                          f" for a measurement of iteration {entry.iteration} ({entry.program}): run that one")
@@ -540,8 +574,9 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     kind = state.error
     if req.log is not None:
         period = req.log_period_s if req.log_period_s is not None else profile.machine.servo_period_s
-        log = read_log(req.log, fmt=req.log_format, period_s=period, units=req.log_units, columns=req.log_columns,
-                       offset=req.log_offset)
+        log = refined_log if refined_log is not None else read_log(
+            req.log, fmt=req.log_format, period_s=period, units=req.log_units, columns=req.log_columns,
+            offset=req.log_offset)
         meas = measure_log(log, ran, original, profile, kind, source=req.log, units=req.log_units)
     else:
         assert req.points is not None
@@ -559,6 +594,9 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     worse = grew(meas.stats, ref_stats, resolution_mm=profile.machine.resolution_mm) if ref_stats else []
     entry.kept = not worse
     notes = list(meas.notes)
+    if refined_log is not None and state.part.get("refined"):
+        notes.insert(0, f"refined from the log of the original program: {state.part['refined']['inserted_lines']}"
+                        " lines inserted (docs/learning.md, Refinement)")
     status, message = "stepped", ""
     out: Path | None = None
     clips: list[Clip] = []
@@ -631,7 +669,7 @@ def _measured_outcome(req: LearnRequest, state: LearnState, status: str, message
     if first and best is not None and best.stats and first["rms"] > 0:
         red = 1.0 - best.stats["rms"] / first["rms"]
     oc = LearnOutcome("log" if req.log is not None else "points", req.program, out, state.directory, its, status, message,
-                      clips, 0, notes, reduction_rms=red)
+                      clips, 0, notes, reduction_rms=red, refined=state.part.get("refined"))
     if req.report is not None:
         oc.report_files = _report_measured(req, state, meas, clips)
     return oc
@@ -678,9 +716,9 @@ def learn_part(req: LearnRequest, *, progress: Callable[[int, int, str], None] |
     profile = load_profile(req.profile).with_cutting_top(req.cutting_below_z_mm)
     profile_sha = sha256_bytes(read_bytes(req.profile))
     data = read_bytes(req.program)
-    if req.refine and (req.log is not None or req.points is not None):
-        raise InputError(None, None, "--refine with --log/--points is not built yet: a measured run learns the"
-                         " program's own commands; refinement runs on the virtual CNC (learn --refine without --log)")
+    if req.refine and req.points is not None:
+        raise InputError(req.points, None, "--refine needs the error along the path: a log of the original program"
+                         " (--log), or a virtual run; measured points hold it at the end points only")
     if req.force and (req.log is not None or req.points is not None):
         raise InputError(None, None, "--force starts a new virtual run; a step from --log/--points continues its --state")
     fresh = req.force or req.state is None or not LearnState.exists(req.state)

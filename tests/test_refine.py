@@ -148,12 +148,57 @@ def test_bad_refine_settings_and_the_cap_are_refused_leaving_nothing(tmp_path: P
     code, msg = _run("learn", OWN / "square.ngc", "--profile", capped, "--out", tmp_path / "b.ngc", "--refine")
     assert code == 1 and "learning.refine.max_lines = 3" in msg and msg.strip().startswith("error: ")
     assert not (tmp_path / "b.ngc").exists() and not (tmp_path / "b.ngc.state").exists()
-    # a measured step does not refine (yet): said, not silently ignored
-    code, msg = _run("learn", OWN / "square.ngc", "--profile", MILL, "--out", tmp_path / "d.ngc", "--log",
-                     tmp_path / "none.csv", "--state", tmp_path / "d.state", "--refine")
-    assert code == 1 and "--refine with --log/--points is not built yet" in msg and not (tmp_path / "d.state").exists()
+    # probed points hold no error along the path to refine from: said, nothing made
+    pts = tmp_path / "p.csv"
+    pts.write_text("k,dx,dy,dz\n1,0.001,0,0\n")
+    code, msg = _run("learn", OWN / "square.ngc", "--profile", MILL, "--out", tmp_path / "d.ngc", "--points", pts,
+                     "--state", tmp_path / "d.state", "--refine")
+    assert code == 1 and "--refine needs the error along the path" in msg and not (tmp_path / "d.state").exists()
     on = _profile_with(tmp_path, enabled="on")
     code, msg = _run("learn", OWN / "square.ngc", "--profile", on, "--out", tmp_path / "c.ngc", "--iterations", "1",
                      "--json", "--report", tmp_path / "rep")
     assert code == 0 and json.loads(msg)["refined"]["inserted_lines"] > 0
     assert (tmp_path / "rep" / "refined-corner.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_measured_workflow_refines_from_the_log_of_the_original(tmp_path: Path) -> None:
+    """No extra machine run: the log of the original program holds the error at the inserted points."""
+    src = REPO / "samples" / "jsdc.gcode"
+    state = tmp_path / "state"
+
+    def run_on_machine(prog: Path, log: Path) -> None:  # the virtual CNC stands in for the machine
+        code, msg = _run("simulate", prog, "--profile", MILL, "--out", log, "--json")
+        assert code == 0, msg
+
+    run_on_machine(src, tmp_path / "run0.csv")
+    code, msg = _run("learn", src, "--profile", MILL, "--log", tmp_path / "run0.csv", "--state", state,
+                     "--out", tmp_path / "p1.gcode", "--refine", "--json")
+    assert code == 0, msg
+    first = json.loads(msg)
+    assert first["refined"]["inserted_lines"] > 0 and first["notes"][0].startswith("refined from the log")
+    # the same points as a virtual first run would place: the log is that run
+    virtual = refine_for_learning(read_program(src), load_profile(MILL))
+    assert first["refined"]["inserted_lines"] == virtual.inserted.n_inserted
+    st = LearnState.load(state)
+    assert st.file(st.iterations[0].program).read_bytes() == virtual.program.data
+    rms = [first["iterations"][0]["contour_error_mm"]["rms"]]
+    for i in (1, 2):
+        run_on_machine(tmp_path / f"p{i}.gcode", tmp_path / f"run{i}.csv")
+        code, msg = _run("learn", src, "--profile", MILL, "--log", tmp_path / f"run{i}.csv", "--state", state,
+                         "--out", tmp_path / f"p{i + 1}.gcode", "--json")
+        assert code == 0, msg
+        it = json.loads(msg)["iterations"][i]
+        assert it["kept"]
+        rms.append(it["contour_error_mm"]["rms"])
+    assert rms[2] < 0.5 * rms[0], rms  # measured: 6.23 -> 2.96 -> 1.49 µm
+    assert sum(MARKER in ln for ln in (tmp_path / "p3.gcode").read_text().splitlines()) == virtual.inserted.n_inserted
+    # a log of the unrefined program after the refined one ran: one line, exit 1, the state untouched
+    before = {p.name: p.read_bytes() for p in state.iterdir()}
+    rows = (tmp_path / "run0.csv").read_text().splitlines()
+    rows[5] = rows[5][:-1] + ("1" if rows[5][-1] != "1" else "2")  # another recording of the original program
+    (tmp_path / "again.csv").write_text("\n".join(rows) + "\n")
+    code, msg = _run("learn", src, "--profile", MILL, "--log", tmp_path / "again.csv", "--state", state,
+                     "--out", tmp_path / "x.gcode")
+    errors = [ln for ln in msg.splitlines() if ln.strip()]
+    assert code == 1 and len(errors) == 1 and "again.csv" in errors[0] and "log of another program" in errors[0]
+    assert {p.name: p.read_bytes() for p in state.iterdir()} == before and not (tmp_path / "x.gcode").exists()
