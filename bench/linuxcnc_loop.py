@@ -5,6 +5,7 @@ Usage::
     python bench/linuxcnc_loop.py                       # KB-219 (gSender example, 7,464 G01s), 4 iterations
     python bench/linuxcnc_loop.py PROG.ngc --iterations 4 --profile configs/linuxcnc-sim.yaml
     python bench/linuxcnc_loop.py --check               # exit 1 when a target is missed
+    python bench/linuxcnc_loop.py PROG.ngc --refine      # refined from the first log (learn --refine, issue 18)
 
 One run does what a shop does, on LinuxCNC's own interpreter, planner and motion controller
 (``configs/linuxcnc-sim``, time-scaled ×8):
@@ -78,6 +79,7 @@ def main() -> int:
     ap.add_argument("--time-scale", type=int, default=8)
     ap.add_argument("--keep", type=Path, help="Keep the programs, logs and state here (default: a temporary folder).")
     ap.add_argument("--check", action="store_true", help="Exit 1 when a target is missed.")
+    ap.add_argument("--refine", action="store_true", help="Refine from the first log (learn --refine).")
     a = ap.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="ilcnc-lcnc-bench-") as tmp:
@@ -98,17 +100,23 @@ def main() -> int:
                 fid = cli("simulate", part, "--profile", a.profile, "--compare", log)["fidelity"]
             t0 = time.perf_counter()
             program = d / f"{part.stem}.ilc{i + 1}.ngc"
-            result = cli("learn", part, "--profile", a.profile, "--log", log, "--state", state, "--out", program)
+            extra = ["--refine"] if a.refine and i == 0 else []
+            result = cli("learn", part, "--profile", a.profile, "--log", log, "--state", state, "--out", program, *extra)
+            if i == 0 and result.get("refined"):
+                print(f"refined: {result['refined']['inserted_lines']} lines inserted", flush=True)
             t_learn += time.perf_counter() - t0
             it = result["iterations"][i]
             ce = it["contour_error_mm"]
-            print(f"run {i}: {run.get('program_s', float('nan')):.1f} s of motion; contour error RMS"
+            print(f"run {i}: {run.get('program_s', float('nan')):.1f} s of motion; cutting moves' contour error RMS"
                   f" {ce['rms'] * 1e3:.2f} µm, max {ce['max'] * 1e3:.1f} µm; kept {it['kept']}", flush=True)
             if result["status"] != "stepped":
                 print(f"learning ended: {result['status']}: {result.get('message', '')}")
                 break
 
     rms = [it["contour_error_mm"]["rms"] for it in result["iterations"] if it.get("contour_error_mm")]
+    mx = [it["contour_error_mm"]["max"] for it in result["iterations"] if it.get("contour_error_mm")]
+    kept_max = [it["contour_error_mm"]["max"] for it in result["iterations"] if it.get("contour_error_mm") and it["kept"]]
+    print(f"cutting max {mx[0] * 1e3:.1f} -> best kept {min(kept_max) * 1e3:.1f} µm ({min(kept_max) / mx[0] - 1:+.0%})")
     change = 1.0 - rms[-1] / rms[0]
     kept_best = 1.0 - min(rms) / rms[0]
     ok_learn = change >= TARGET_REDUCTION
