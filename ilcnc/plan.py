@@ -312,23 +312,13 @@ def _plan(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corn
     if mode == "linuxcnc":
         return _plan_linuxcnc(moves, limits, period_s, corner_tolerance_mm)
     m = len(moves)
-    length = move_lengths_mm(moves)
-    speed = _nominal_speed(moves, length, limits)
-    hold_s = _stand_still_s(moves, length)
-    empty = Reference(period_s, np.zeros((0, 3)), np.zeros(0, np.int32), np.zeros(0, np.int32),
-                      np.zeros(0, np.int32), speed)
     if m == 0:
-        return empty
-    active = (length > _EPS) | (hold_s > 0.0)
-    geo = _Geometry(*_directions(moves), arc_sweep_rad(moves))
+        speed = _nominal_speed(moves, move_lengths_mm(moves), limits)
+        return Reference(period_s, np.zeros((0, 3)), np.zeros(0, np.int32), np.zeros(0, np.int32),
+                         np.zeros(0, np.int32), speed)
+    length, speed, geo, setups = _group_setups(moves, limits, period_s, mode, corner_tolerance_mm,
+                                               jerk_time_constant_s)
     hold = max(_HOLD_SAMPLES, math.ceil(in_position_s / period_s))
-    setups = []
-    for g0, g1 in _groups(moves.kind, active):
-        idx = np.arange(g0, g1)
-        idx = idx[active[idx]]
-        if idx.size:
-            setups.append(_group_setup(moves, geo, idx, length, speed, hold_s, limits, period_s, mode,
-                                       corner_tolerance_mm, jerk_time_constant_s))
     # stand still between groups: an in-position check after rapids (and before them) as CNCs
     # do, so the drives settle before the next group; it also keeps the finite differences of one
     # group's end and the next one's start apart; no stand-still after the last group
@@ -498,26 +488,32 @@ def corner_zones_mm(program: object, profile: MachineProfile) -> tuple[NDArray[n
     z_in, z_out = np.zeros(m), np.zeros(m)
     if m == 0 or profile.planner.profile == "linuxcnc":
         return z_in, z_out
-    limits = PlanLimits.from_profile(profile)
-    period_s = profile.machine.servo_period_s
+    pl = profile.planner
+    _length, _speed, _geo, setups = _group_setups(moves, PlanLimits.from_profile(profile),
+                                                  profile.machine.servo_period_s, pl.profile, pl.corner_tolerance_mm,
+                                                  pl.jerk_time_constant_s)
+    for g in setups:
+        _v_in, _v_out, z_in[g.idx], z_out[g.idx] = _zones(g.v, g.vj, g.span_s)
+    return z_in, z_out
+
+
+def _group_setups(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corner_tolerance_mm: float,
+                  jerk_time_constant_s: float
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], _Geometry, list[_GroupSetup]]:
+    """Move lengths, nominal speeds, geometry and the setup of every group of a move table (first pass)."""
     length = move_lengths_mm(moves)
     speed = _nominal_speed(moves, length, limits)
     hold_s = _stand_still_s(moves, length)
     active = (length > _EPS) | (hold_s > 0.0)
     geo = _Geometry(*_directions(moves), arc_sweep_rad(moves))
+    setups = []
     for g0, g1 in _groups(moves.kind, active):
         idx = np.arange(g0, g1)
         idx = idx[active[idx]]
-        if idx.size < 2:
-            continue
-        g = _group_setup(moves, geo, idx, length, speed, hold_s, limits, period_s, profile.planner.profile,
-                         profile.planner.corner_tolerance_mm, profile.planner.jerk_time_constant_s)
-        vj = np.where(g.vj <= 0.0, np.inf, g.vj)
-        v_in = np.minimum(g.v, np.concatenate(([np.inf], vj)))
-        v_out = np.minimum(g.v, np.concatenate((vj, [np.inf])))
-        z_in[idx] = np.where(v_in < g.v, v_in * g.span_s, 0.0)
-        z_out[idx] = np.where(v_out < g.v, v_out * g.span_s, 0.0)
-    return z_in, z_out
+        if idx.size:
+            setups.append(_group_setup(moves, geo, idx, length, speed, hold_s, limits, period_s, mode,
+                                       corner_tolerance_mm, jerk_time_constant_s))
+    return length, speed, geo, setups
 
 
 def _runs_to_samples(run_move: NDArray[np.int64], run_count: NDArray[np.int64]) -> NDArray[np.int32]:
@@ -532,19 +528,9 @@ def _plan_pieces(moves: MoveTable, limits: PlanLimits, period_s: float, mode: st
     m = len(moves)
     if m == 0:
         return
-    length = move_lengths_mm(moves)
-    speed = _nominal_speed(moves, length, limits)
-    hold_s = _stand_still_s(moves, length)
-    active = (length > _EPS) | (hold_s > 0.0)
-    geo = _Geometry(*_directions(moves), arc_sweep_rad(moves))
+    length, _speed, geo, setups = _group_setups(moves, limits, period_s, mode, corner_tolerance_mm,
+                                                jerk_time_constant_s)
     hold = max(_HOLD_SAMPLES, math.ceil(in_position_s / period_s))
-    setups = []
-    for g0, g1 in _groups(moves.kind, active):
-        idx = np.arange(g0, g1)
-        idx = idx[active[idx]]
-        if idx.size:
-            setups.append(_group_setup(moves, geo, idx, length, speed, hold_s, limits, period_s, mode,
-                                       corner_tolerance_mm, jerk_time_constant_s))
     yield moves.start_mm[0][None, :].copy(), np.full(1, -1, dtype=np.int32)
     for gi, g in enumerate(setups):
         if HAVE_NUMBA and g.first_size > chunk:
@@ -834,18 +820,32 @@ def _position_on_moves(moves: MoveTable, mv: NDArray[np.int64], frac: NDArray[np
 _COLLINEAR = 1e-9
 
 
-def _chain_lengths(length: NDArray[np.float64], straight: NDArray[np.bool_], is_arc: NDArray[np.bool_]
+def _straight_joins(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], hold: NDArray[np.float64]
+                    ) -> NDArray[np.bool_]:
+    """Per junction of a group's moves (n - 1): two straight moves (no arc, no stand-still) joined without a
+    turn, so that they are one line."""
+    if idx.shape[0] < 2:
+        return np.zeros(0, dtype=np.bool_)
+    du = np.linalg.norm(geo.t_in[idx[1:]] - geo.t_out[idx[:-1]], axis=1)
+    arc = moves.kind[idx] >= MOVE_ARC_CW
+    still = hold > 0.0
+    return (du <= _COLLINEAR) & ~arc[:-1] & ~arc[1:] & ~still[:-1] & ~still[1:]
+
+
+def _chain_ids(join: NDArray[np.bool_]) -> NDArray[np.int64] | None:
+    """Chain id of each move: a new chain starts where the junction before it is not a join (None: no join)."""
+    if not join.any():
+        return None
+    return np.concatenate(([0], np.cumsum(~join)))
+
+
+def _chain_lengths(length: NDArray[np.float64], join: NDArray[np.bool_]
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Per junction (n - 1): the length of the chain of collinear straight moves ending before it and of the
     one starting after it, mm (a move's own length where its neighbours are not collinear with it)."""
-    n = length.shape[0]
-    if n < 2:
-        return np.zeros(0), np.zeros(0)
-    join = straight & ~is_arc[:-1] & ~is_arc[1:]
-    if not join.any():
+    chain = _chain_ids(join)
+    if chain is None:
         return length[:-1], length[1:]
-    # chain id of every move: a new chain starts where the junction before it is not a join
-    chain = np.concatenate(([0], np.cumsum(~join)))
     total = np.bincount(chain, weights=length)
     return total[chain[:-1]], total[chain[1:]]
 
@@ -894,13 +894,14 @@ def _junction_tolerances(blend_tol: NDArray[np.float64], default_tol_mm: float, 
 def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.float64],
                    t_in: NDArray[np.float64], t_out: NDArray[np.float64], limits: PlanLimits, default_tol_mm: float,
                    filt_s: tuple[float, ...], v_nom: NDArray[np.float64],
-                   still: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                   still: NDArray[np.bool_], join: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Speed limits at each junction inside a group (between idx[i] and idx[i+1]) and per move (arcs).
 
     The corner tolerances come from the moves' path control (``moves.blend_tol_mm``) and
     ``default_tol_mm``, the profile's tolerance, which also bounds the shrinking of arcs in the exact
     and unbounded modes; ``still`` marks the group's stand-still moves (zero-length inverse-time
-    blocks), which take the tangents of the moves around them.
+    blocks), which take the tangents of the moves around them; ``join`` the junctions that join two
+    straight moves into one line (:func:`_straight_joins`).
 
     Returns
     -------
@@ -960,7 +961,7 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
     # a straight line split into collinear moves plans as the line (refinement inserts such points): the
     # lengths that bound a corner's tolerance and tell a curve from a corner are those of the collinear
     # chains meeting there, not of the pieces
-    before_len, after_len = _chain_lengths(seg_len, (du <= _COLLINEAR) & ~still[:-1] & ~still[1:], is_arc)
+    before_len, after_len = _chain_lengths(seg_len, join)
     tol_j, stop = _junction_tolerances(blend_g, default_tol_mm, seg_len, before_len, after_len)
     vj = np.full(n - 1, np.inf)
     # corner rounding by the filters stays within the tolerance; an exact path stops where the direction changes
@@ -1005,21 +1006,6 @@ class _GroupSetup:
     chain: NDArray[np.int64] | None = None  # collinear chain of each move (None: every move its own)
 
 
-def _collinear_chains(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], hold: NDArray[np.float64]
-                      ) -> NDArray[np.int64] | None:
-    """Chain id of each of the group's moves: consecutive straight moves joined without a turn share one
-    (None when no junction of the group is straight)."""
-    if idx.shape[0] < 2:
-        return None
-    du = np.linalg.norm(geo.t_in[idx[1:]] - geo.t_out[idx[:-1]], axis=1)
-    arc = moves.kind[idx] >= MOVE_ARC_CW
-    still = hold > 0.0
-    join = (du <= _COLLINEAR) & ~arc[:-1] & ~arc[1:] & ~still[:-1] & ~still[1:]
-    if not join.any():
-        return None
-    return np.concatenate(([0], np.cumsum(~join)))
-
-
 def _group_setup(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], length: NDArray[np.float64],
                  speed: NDArray[np.float64], hold_s: NDArray[np.float64], limits: PlanLimits, period_s: float,
                  mode: str, default_tol_mm: float, jerk_tc_s: float) -> _GroupSetup:
@@ -1035,12 +1021,13 @@ def _group_setup(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], lengt
     vmax_axis = np.max(v[:, None] * u_abs, axis=0)
     lengths = _filter_lengths(mode, vmax_axis, limits, period_s, jerk_tc_s)
     filt_s = tuple(n * period_s for n in lengths)
-    vj, v_move = _corner_limits(moves, idx, length, t_in, t_out, limits, default_tol_mm, filt_s, v, hold > 0.0)
+    join = _straight_joins(moves, geo, idx, hold)
+    vj, v_move = _corner_limits(moves, idx, length, t_in, t_out, limits, default_tol_mm, filt_s, v, hold > 0.0, join)
     v = np.minimum(v, v_move)
     span_s = sum(filt_s)
     first = _pieces(length[idx], v * np.ones(idx.shape[0]), vj, span_s, hold)
     size = _ideal_samples(first[4], period_s)[0] + sum(n - 1 for n in lengths)
-    return _GroupSetup(idx, v, vj, hold, lengths, span_s, first, size, _collinear_chains(moves, geo, idx, hold))
+    return _GroupSetup(idx, v, vj, hold, lengths, span_s, first, size, _chain_ids(join))
 
 
 def _ideal_samples(dur: NDArray[np.float64], period_s: float) -> tuple[int, NDArray[np.float64], float]:
@@ -1391,6 +1378,16 @@ _Pieces = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDA
                 NDArray[np.float64], NDArray[np.float64]]
 
 
+def _zones(v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float
+           ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Speed entering and leaving every move (its own, or a slower junction's; a stop is no speed limit here:
+    it is a dwell) and the lengths of its slow zones at start and end, mm (``v_corner * span``)."""
+    vj_slow = np.where(vj <= 0.0, np.inf, vj)
+    v_in = np.minimum(v, np.concatenate(([np.inf], vj_slow)))
+    v_out = np.minimum(v, np.concatenate((vj_slow, [np.inf])))
+    return v_in, v_out, np.where(v_in < v, v_in * span_s, 0.0), np.where(v_out < v, v_out * span_s, 0.0)
+
+
 def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float,
             hold_s: NDArray[np.float64] | None = None) -> _Pieces:
     """Split moves into zones with their speeds: slow zones before and after each junction.
@@ -1412,11 +1409,7 @@ def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[n
     """
     n = move_len.shape[0]
     stop_after = np.concatenate((vj <= 0.0, [False]))
-    vj_slow = np.where(vj <= 0.0, np.inf, vj)
-    v_in = np.minimum(v, np.concatenate(([np.inf], vj_slow)))
-    v_out = np.minimum(v, np.concatenate((vj_slow, [np.inf])))
-    zin = np.where(v_in < v, v_in * span_s, 0.0)
-    zout = np.where(v_out < v, v_out * span_s, 0.0)
+    v_in, v_out, zin, zout = _zones(v, vj, span_s)
     slow = (v_in < v) | (v_out < v)
     short = (zin + zout >= move_len) | ((span_s == 0.0) & slow)
     lens = np.stack([zin, move_len - zin - zout, zout, np.zeros(n)], axis=1)
