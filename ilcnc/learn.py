@@ -505,15 +505,15 @@ class Learner:
     prev_k: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     vec_mm: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     free: NDArray[np.bool_] | None = None
+    air_kept: NDArray[np.bool_] | None = None  # commands left as programmed because they are in the air
 
     @classmethod
     def for_program(cls, program: Program, profile: MachineProfile, law: LearningLaw | None = None) -> Learner:
         sec = profile.learning
         law = law if law is not None else make_law(profile, program)
         correctable = correctable_commands(program)
-        air = air_command_mask(program, profile)
-        if sec.air_moves == "keep":
-            correctable = correctable & ~air
+        air_kept = air_command_mask(program, profile) if sec.air_moves == "keep" else np.zeros(program.n_commands, bool)
+        correctable = correctable & ~air_kept
         shaper = UpdateShaper(cut_runs(program), correctable, sec.lead_commands, sec.q_filter_hz,
                               profile.machine.servo_period_s)
         sel, geo = arc_start_constraint(program)
@@ -521,7 +521,7 @@ class Learner:
         vec = program.moves.end_mm[cm] - program.moves.start_mm[cm]
         program.resolve_spans()
         return cls(program, profile, law, shaper, sec.correction_bound_mm, sel, geo, start_corrections(program), vec,
-                   axes_free_to_move(program))
+                   axes_free_to_move(program), air_kept)
 
     def axis_mask(self) -> NDArray[np.float64]:
         return np.array([1.0 if a in self.profile.axes else 0.0 for a in AXES])
@@ -731,7 +731,7 @@ def learn_virtual(
     n_iter = profile.learning.iterations if iterations is None else int(iterations)
     kind = error_kind(profile)
     learner = Learner.for_program(program, profile, law)
-    air = air_command_mask(program, profile) if profile.learning.air_moves == "keep" else np.zeros(program.n_commands, bool)
+    air = learner.air_kept if learner.air_kept is not None else np.zeros(program.n_commands, bool)
     frozen = int(np.count_nonzero(~learner.shaper.correctable & ~air))
     n_air = int(np.count_nonzero(air & correctable_commands(program)))
     rule = profile_cutting_rule(program, profile)

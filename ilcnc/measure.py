@@ -179,7 +179,7 @@ def measure_log(
     # tolerance, the program's G64 P) and lies off the drawing by the corrections of the program that ran.
     reach: dict[str, Any] = {}
     ref_log = np.asarray(log.ref_mm, dtype=np.float64)
-    if log.has_z is False:
+    if not log.has_z:
         ref_log = ref_log.copy()
         ref_log[:, 2] = act[:, 2]
     if np.all(np.isfinite(ref_log)) and len(ran.moves) == len(original.moves):

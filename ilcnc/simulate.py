@@ -199,9 +199,7 @@ def simulate_program(
     if against is not None:
         slack = slack + against_slack_mm(program, target, move_map)
     reach = {"reference_mm": ref.pos_mm, "reference_slack_mm": slack}
-    # the samples' moves on the target's path (a refined program's pieces on the moves they split)
-    on_target = ref.move if move_map is None else np.where(ref.move >= 0, move_map[np.maximum(ref.move, 0)], -1).astype(
-        ref.move.dtype)
+    on_target = moves_on_target(ref.move, move_map)
     shares: dict[str, dict[str, float]] = {}
     if sources.enabled and move_map is not None:
         raise InputError(against.path if against is not None else None, None, "--against a program with fewer points"
@@ -350,20 +348,26 @@ def _check_against(program: Program, against: Program | None) -> NDArray[np.int6
     against.require_complete()
     if len(against.moves) == len(program.moves) and np.array_equal(against.moves.kind, program.moves.kind):
         return None
-    from ilcnc.program.insert import inserted_moves
+    from ilcnc.program.insert import inserted_moves, split_move_of
 
     ins = inserted_moves(program)
     own = np.flatnonzero(~ins)
     if ins.any() and own.size == len(against.moves) and np.array_equal(program.moves.kind[own], against.moves.kind) \
             and np.all(program.moves.kind[ins] == MOVE_LINE):
-        # an inserted piece precedes the move it splits: it maps to the next move that is not inserted
-        nxt = np.searchsorted(own, np.arange(len(program.moves)))
+        nxt = split_move_of(ins)
         if nxt.max() < own.size and np.all(against.moves.kind[nxt[ins]] == MOVE_LINE):
-            return nxt.astype(np.int64)
+            return nxt
     raise InputError(against.path, None,
                      f"--against program has {len(against.moves)} moves, {program.path.name} has "
                      f"{len(program.moves)}{f' ({int(ins.sum())} inserted by ilcnc refine)' if ins.any() else ''}: it"
                      " is not the same part (only coordinates may differ, or refined points be added)")
+
+
+def moves_on_target(move: NDArray[np.int32], move_map: NDArray[np.int64] | None) -> NDArray[np.int32]:
+    """The samples' moves on the judged path: a refined program's pieces on the moves they split (-1 stays)."""
+    if move_map is None:
+        return move
+    return np.where(move >= 0, move_map[np.maximum(move, 0)], -1).astype(move.dtype)
 
 
 def against_slack_mm(program: Program, target: Program, move_map: NDArray[np.int64] | None) -> NDArray[np.float64]:

@@ -141,7 +141,7 @@ def simulate_streamed(
     from ilcnc.air import profile_move_classes
     from ilcnc.contour import PathGeometry, contour_error
     from ilcnc.drives import DriveStream
-    from ilcnc.simulate import FeedStats, _check_against, _check_travel, against_slack_mm
+    from ilcnc.simulate import FeedStats, _check_against, _check_travel, against_slack_mm, moves_on_target
 
     why = stream_unsupported(profile, "path")
     if why:
@@ -179,8 +179,7 @@ def simulate_streamed(
             drives = DriveStream(profile, ch.pos_mm[0])
         act = drives.step(ch.pos_mm)
         t1 = time.perf_counter()
-        on_target = ch.move if move_map is None else np.where(ch.move >= 0, move_map[np.maximum(ch.move, 0)],
-                                                              -1).astype(ch.move.dtype)
+        on_target = moves_on_target(ch.move, move_map)
         err = contour_error(path, act, on_target, reference_mm=ch.pos_mm, reference_slack_mm=slack)
         t2 = time.perf_counter()
         before = feed_stats.worst_sample

@@ -313,14 +313,15 @@ def _virtual(req: LearnRequest, profile: MachineProfile, profile_sha: str, data:
         if not req.force:
             raise StateError(state_dir, None, f"already holds a learning run: continue it with --state {state_dir},"
                              " replace it with --force, or choose another --out / --state")
-        with _replacing(state_dir, req):
+        with _replacing(state_dir, req, data):
             return _virtual_run(req, profile, profile_sha, data, None, relation, progress, state_dir)
     return _virtual_run(req, profile, profile_sha, data, state, relation, progress, state_dir)
 
 
 @contextlib.contextmanager
-def _replacing(state_dir: Path, req: LearnRequest) -> Iterator[None]:
-    """``--force``: set the earlier run's state aside, drop it once the new run is written, restore it on failure."""
+def _replacing(state_dir: Path, req: LearnRequest, data: bytes) -> Iterator[None]:
+    """``--force``: set the earlier run's state aside, drop it once the new run is written, restore it on failure
+    (``data``: the bytes of ``req.program``)."""
     root = state_dir.resolve()
     for p in (req.program, req.profile):
         if root == p.resolve() or root in p.resolve().parents:
@@ -330,8 +331,8 @@ def _replacing(state_dir: Path, req: LearnRequest) -> Iterator[None]:
     except StateError:
         earlier = None  # a damaged state is replaced like any other
     if earlier is not None:
-        text = read_bytes(req.program).decode("latin-1")
-        for h in (sha256_bytes(text.encode("latin-1")), sha256_bytes(unstamp_text(text).encode("latin-1"))):
+        text = data.decode("latin-1")
+        for h in (sha256_bytes(data), sha256_bytes(unstamp_text(text).encode("latin-1"))):
             if h != earlier.part["sha256"] and earlier.find_program(h) is not None:
                 raise StateError(req.program, None, f"is an output of the run in {state_dir}: --force would correct it"
                                  " twice; learn the original program")
@@ -356,19 +357,19 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
         if req.refine and not state.part.get("refined"):
             raise StateError(state.directory, None, "holds a run without refinement: --refine refines at the start of"
                              " a run (the refined program is its learning index); start a new run with --force")
+        _out_suffix_matches(original, req.out)
         best = state.best()
         u0 = state.read_corrections(best) if best is not None else None
         first = best.iteration if best is not None else 0
     else:
         original = read_program(req.program, default_units=profile.machine.units, data=data)
-        _out_suffix_matches(original, req.out)
+        _out_suffix_matches(original, req.out)  # before refining: a refusal costs no run
         refinement = refine_for_learning(original, profile) if refine else None  # before the state: a refusal makes none
         state = _new_state(state_dir, original, data, profile, profile_sha)
         if refinement is not None:
             _store_refinement(state, refinement)
             notes.extend(refinement.notes())
         u0, first = None, 0
-    _out_suffix_matches(original, req.out)
     learning = _learning_program(state, original, profile)
     writer = _record_writer(state, learning)
     result = learn_virtual(learning, profile, iterations=req.iterations, keep_runs=req.report is not None,

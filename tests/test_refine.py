@@ -17,7 +17,7 @@ from ilcnc.learn import refine_for_learning
 from ilcnc.plan import plan_program
 from ilcnc.profile import load_profile
 from ilcnc.program import read_program
-from ilcnc.program.insert import MARKER, inserted_moves
+from ilcnc.program.insert import MARKER, inserted_moves, split_move_of
 from ilcnc.state import LearnState
 
 from .conftest import OWN, REPO, SAMPLES
@@ -39,9 +39,7 @@ def _planned_path_deviation_mm(original, refined, profile) -> tuple[float, float
     and both cycle times, s."""
     a, b = plan_program(original, profile), plan_program(refined, profile)
     path = PathGeometry.from_polyline(a.pos_mm, commands=False)
-    ins = inserted_moves(refined)
-    own = np.flatnonzero(~ins)
-    nxt = np.searchsorted(own, np.arange(len(refined.moves)))  # an inserted piece: the move it splits
+    nxt = split_move_of(inserted_moves(refined))  # an inserted piece: the move it splits
     first_sample = np.searchsorted(a.move, np.arange(len(original.moves)))
     hint = np.clip(first_sample[nxt[np.maximum(b.move, 0)]], 0, a.n_samples - 2)
     err = contour_error(path, b.pos_mm, hint, window=3000)

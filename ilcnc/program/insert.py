@@ -49,7 +49,8 @@ from ilcnc.program.model import (
 )
 from ilcnc.program.rewrite import format_number, spelling
 
-__all__ = ["MARKER", "InsertResult", "InsertedLine", "SkippedMove", "insert_points", "inserted_moves", "required_decimals"]
+__all__ = ["MARKER", "InsertResult", "InsertedLine", "SkippedMove", "insert_points", "inserted_moves", "required_decimals",
+           "split_move_of"]
 
 #: The trailing comment of every inserted line.
 MARKER = "ilcnc refine"
@@ -797,3 +798,11 @@ def inserted_moves(program: Program, marker: str = MARKER) -> NDArray[np.bool_]:
     lines = np.unique(program.moves.line)
     marked = [int(ln) for ln in lines.tolist() if ln > 0 and marker in _line_text(program, int(ln))[1]]
     return np.isin(program.moves.line, marked)
+
+
+def split_move_of(inserted: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """For every move of a refined program (``inserted``: :func:`inserted_moves`), the index of the original
+    move it lies on: an inserted piece precedes the move it splits, so it belongs to the next move that is
+    not inserted (the move count of the original where a trailing piece has none)."""
+    own = np.flatnonzero(~inserted)
+    return np.searchsorted(own, np.arange(inserted.shape[0])).astype(np.int64)
