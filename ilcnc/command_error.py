@@ -11,7 +11,10 @@ Five estimates (profile key ``learning.error``):
   end of command k (seed 000's ACE);
 * ``tangent`` -- seed 000's Frenet-frame estimate at that instant (the
   normal part of desired minus actual, with the original path's tangent);
-* ``tracking`` -- end point minus actual at that instant (seed 003).
+* ``tracking`` -- end point minus actual at that instant (seed 003);
+* ``lifted`` -- the end-point moves that, passed through the drives, best
+  cancel the sampled contour error (damped least squares,
+  :mod:`ilcnc.lifted_error`): the estimate that sees a corner.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from ilcnc.program.model import MOVE_RAPID, Program
 
 __all__ = [
     "DEFAULT_ERROR",
+    "ERROR_KINDS",
     "CommandSignal",
     "PathWeightedSums",
     "command_end_tangents",
@@ -43,6 +47,8 @@ __all__ = [
 
 #: Default error estimate of each law (``learning.error: auto``).
 DEFAULT_ERROR = {"p": "path", "pid_ace": "contour", "second_order": "tracking"}
+#: The estimates (profile key ``learning.error``, ``auto`` aside).
+ERROR_KINDS = ("path", "crossing", "contour", "tangent", "tracking", "lifted")
 
 # ---------------------------------------------------------------------------------------------
 # The per-command error signal
@@ -103,12 +109,15 @@ def command_signal_from_run(
     sample_move: NDArray[np.integer] | None = None,
     max_lag_s: float = 0.5,
     on_feed: NDArray[np.bool_] | None = None,
+    program: Program | None = None,
+    profile: MachineProfile | None = None,
+    free: NDArray[np.bool_] | None = None,
 ) -> CommandSignal:
-    """``E(k)`` of a run (simulated or measured) by one of the four estimates.
+    """``E(k)`` of a run (simulated or measured) by one of the estimates.
 
     Parameters
     ----------
-    kind : {"path", "crossing", "contour", "tangent", "tracking"}
+    kind : {"path", "crossing", "contour", "tangent", "tracking", "lifted"}
         The estimate (see the profile key ``learning.error``).
     path : PathGeometry
         The *original* programmed path (the drawing).
@@ -135,7 +144,13 @@ def command_signal_from_run(
         ``crossing``: how long after the reference left a command the machine
         may still pass its end point, s.
     on_feed : ndarray (N,) bool, optional
-        ``path``: samples that count (the machine executes a feed move).
+        ``path``, ``lifted``: samples that count (the machine executes a feed move).
+    program : Program, optional
+        ``lifted``: the program whose moves the run's reference is on.
+    profile : MachineProfile, optional
+        ``lifted``: the drive models and servo period.
+    free : ndarray (K, 3) bool, optional
+        ``lifted``: the coordinates the learning may move (default: every axis of the profile).
     """
     from ilcnc.contour import tangent_error
 
@@ -154,6 +169,19 @@ def command_signal_from_run(
         return _finish_signal(e, t, kind)
     if command_sample is None:
         raise ValueError(f"error estimate {kind!r} needs the sample of each command")
+    if kind == "lifted":
+        from ilcnc.lifted_error import lifted_error
+
+        if program is None or profile is None or ref_mm is None or sample_move is None:
+            raise ValueError("error estimate 'lifted' needs the program, the profile, the reference and its moves")
+        ns = actual_mm.shape[0]
+        w = np.ones(ns, bool) if on_feed is None else np.asarray(on_feed, bool)
+        fr = np.ones((kk, 3), bool) if free is None else np.asarray(free, bool)
+        e, t, ok = lifted_error(program=program, profile=profile, path=path, err=err, ref_mm=ref_mm,
+                                sample_move=sample_move, weight=w, command_sample=command_sample, t_s=t_s,
+                                free=fr, gate_mm=gate)
+        e[~ok] = np.nan
+        return _finish_signal(e, t, kind)
     cs = np.asarray(command_sample, dtype=np.float64)
     ok = np.isfinite(cs)
     idx = np.where(ok, cs, 0).astype(np.int64)
@@ -523,10 +551,15 @@ def reference_command_samples(ref_move: NDArray[np.integer], command_moves: NDAr
 
 
 
-def error_kind(profile: MachineProfile) -> str:
-    """The error estimate the profile asks for (``auto`` resolved by the law)."""
+def error_kind(profile: MachineProfile, *, refined: bool = False) -> str:
+    """The error estimate the profile asks for (``auto`` resolved by the law; for the ``p`` law on a refined
+    program ``lifted``: its corners are what the refinement is for, and ``path`` dilutes them)."""
     k = profile.learning.error
-    return DEFAULT_ERROR[profile.learning.law] if k == "auto" else k
+    if k != "auto":
+        return k
+    if refined and profile.learning.law == "p":
+        return "lifted"
+    return DEFAULT_ERROR[profile.learning.law]
 
 
 
@@ -535,8 +568,11 @@ def measurement_gate_mm(profile: MachineProfile) -> float:
     return max(2.0, 4.0 * profile.learning.correction_bound_mm)
 
 
-def signal_of_simulation(sim: Any, original: Program, kind: str, gate_mm: float | None = None) -> CommandSignal:
-    """``E(k)`` of a virtual-CNC run against the original drawing."""
+def signal_of_simulation(sim: Any, original: Program, kind: str, gate_mm: float | None = None, *,
+                         profile: MachineProfile | None = None, free: NDArray[np.bool_] | None = None
+                         ) -> CommandSignal:
+    """``E(k)`` of a virtual-CNC run against the original drawing (``profile`` and ``free``: for ``lifted``, see
+    :func:`command_signal_from_run`)."""
     ref = sim.reference
     path = sim.error.path
     cs = None
@@ -546,6 +582,6 @@ def signal_of_simulation(sim: Any, original: Program, kind: str, gate_mm: float 
     t_s = ref.t_s if kind == "crossing" else ref.period_s
     return command_signal_from_run(kind, path=path, err=sim.error, actual_mm=sim.actual_mm, t_s=t_s,
                                    command_sample=cs, ref_mm=ref.pos_mm, gate_mm=gate_mm, sample_move=ref.move,
-                                   on_feed=sim.feed_mask)
+                                   on_feed=sim.feed_mask, program=original, profile=profile, free=free)
 
 

@@ -526,6 +526,12 @@ class Learner:
     def axis_mask(self) -> NDArray[np.float64]:
         return np.array([1.0 if a in self.profile.axes else 0.0 for a in AXES])
 
+    def free_coordinates(self) -> NDArray[np.bool_]:
+        """(K, 3): the coordinates :meth:`propose` may move (correctable commands, the profile's axes, words
+        free to change)."""
+        out = self.shaper.correctable[:, None] & (self.axis_mask()[None, :] > 0)
+        return out & self.free if self.free is not None else out
+
     def propose(
         self,
         u_hist: list[NDArray[np.float64]],
@@ -582,11 +588,12 @@ class ModelSteps:
 
 
 def virtual_run(original: Program, u_mm: NDArray[np.float64] | None, profile: MachineProfile, kind: str, *,
-                sources: Any = None) -> tuple[Any, CommandSignal]:
+                sources: Any = None, free: NDArray[np.bool_] | None = None) -> tuple[Any, CommandSignal]:
     """Run ``original`` with corrections ``u_mm`` (K, 3; None or zeros: as it is) on the virtual CNC of
     ``profile``: the run (its ``stats``) and the ``E(k)`` it predicts, chunk by chunk where the profile allows.
 
-    ``sources`` are the profile's error sources when already loaded (:class:`ilcnc.machine_errors.ErrorSources`).
+    ``sources`` are the profile's error sources when already loaded (:class:`ilcnc.machine_errors.ErrorSources`);
+    ``free`` the coordinates the learning may move (the ``lifted`` estimate solves for those alone).
     """
     from ilcnc.machine_errors import ErrorSources
     from ilcnc.simulate import simulate_program
@@ -603,7 +610,7 @@ def virtual_run(original: Program, u_mm: NDArray[np.float64] | None, profile: Ma
         st = simulate_streamed(prog, profile, against=against, gate_mm=gate)
         return st, st.signal
     sim = simulate_program(prog, profile, against=against, sources=sources)
-    return sim, signal_of_simulation(sim, original, kind, gate)
+    return sim, signal_of_simulation(sim, original, kind, gate, profile=profile, free=free)
 
 
 def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], measured: CommandSignal,
@@ -631,16 +638,17 @@ def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], mea
         return u_step, clips_step, ModelSteps(0, pred, "steps")
     if learner.law.memory != 1:
         return u_step, clips_step, ModelSteps(0, pred, "law")
-    if kind not in ("path", "crossing"):
+    if kind not in ("path", "crossing", "lifted"):
         return u_step, clips_step, ModelSteps(0, pred, "kind")  # e.g. probed points: no E(k) the model predicts
     from ilcnc.machine_errors import ErrorSources
 
     profile, original = learner.profile, learner.program
     sources = ErrorSources.from_profile(profile)  # map, FRF and stock files read once for all the runs
-    _run, s_meas = virtual_run(original, u_meas, profile, kind, sources=sources)
+    free = learner.free_coordinates()
+    _run, s_meas = virtual_run(original, u_meas, profile, kind, sources=sources, free=free)
 
     def predicted(u: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_], float]:
-        _run, s_u = virtual_run(original, u, profile, kind, sources=sources)
+        _run, s_u = virtual_run(original, u, profile, kind, sources=sources, free=free)
         ok = measured.valid & s_meas.valid & s_u.valid
         e = np.where(ok[:, None], measured.e_mm + s_u.e_mm - s_meas.e_mm, 0.0)
         return e, ok, rms(e, ok)
@@ -684,6 +692,7 @@ def learn_virtual(
     first_iteration: int = 0,
     progress: Callable[[int, int, str], None] | None = None,
     on_record: Callable[[IterationRecord], None] | None = None,
+    error: str | None = None,
 ) -> LearnResult:
     """Learn corrections for a program on the virtual CNC of a profile.
 
@@ -718,6 +727,8 @@ def learn_virtual(
         Called with every iteration record as soon as it exists (the state
         directory writes each iteration's program and errors there, so a run
         killed later keeps every finished iteration).
+    error : str, optional
+        The error estimate (default: the profile's, :func:`ilcnc.command_error.error_kind`).
 
     Returns
     -------
@@ -729,7 +740,7 @@ def learn_virtual(
 
     program.require_complete()
     n_iter = profile.learning.iterations if iterations is None else int(iterations)
-    kind = error_kind(profile)
+    kind = error_kind(profile) if error is None else error
     learner = Learner.for_program(program, profile, law)
     air = learner.air_kept if learner.air_kept is not None else np.zeros(program.n_commands, bool)
     frozen = int(np.count_nonzero(~learner.shaper.correctable & ~air))
@@ -740,6 +751,8 @@ def learn_virtual(
 
     # a run that keeps only its figures goes chunk by chunk (bounded memory, the same numbers: ilcnc.stream)
     streamed = not keep_runs and stream_unsupported(profile, kind, sources=sources) is None
+
+    free_coords = learner.free_coordinates()
 
     def run(prog: Program, it: int) -> tuple[Any, CommandSignal, dict[str, float]]:
         if progress:
@@ -753,7 +766,8 @@ def learn_virtual(
             return st, st.signal, timings
         sim = simulate_program(prog, profile, against=None if prog is program else program, sources=sources)
         t1 = time.perf_counter()
-        sig = signal_of_simulation(sim, program, kind, measurement_gate_mm(profile))
+        sig = signal_of_simulation(sim, program, kind, measurement_gate_mm(profile), profile=profile,
+                                   free=free_coords)
         timings = dict(sim.timings_s)
         timings["error"] = time.perf_counter() - t1
         timings["simulate"] = t1 - t0

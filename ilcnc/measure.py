@@ -210,8 +210,17 @@ def measure_log(
     cs = None
     if kind not in ("crossing", "path"):
         cs = reference_command_samples(np.maximum.accumulate(mv), original.command_moves)
+    if kind == "lifted":
+        dt = np.diff(np.asarray(log.t_s, dtype=np.float64))
+        per = profile.machine.servo_period_s
+        if dt.size and not abs(float(np.median(dt)) / per - 1.0) <= 0.01:
+            raise LogError(src, None, f"the log is sampled every {float(np.median(dt)) * 1e3:.4g} ms, the servo period"
+                           f" (machine.servo_period_s) is {per * 1e3:.4g} ms: learning.error 'lifted' filters the"
+                           " log's reference through the drive models, which needs samples at the servo period"
+                           " (log at that rate, or use learning.error: path)")
     sig = command_signal_from_run(kind, path=path, err=err, actual_mm=act, t_s=np.asarray(log.t_s), command_sample=cs,
-                                  ref_mm=np.nan_to_num(log.ref_mm), gate_mm=gate, sample_move=mv, on_feed=feed)
+                                  ref_mm=np.nan_to_num(log.ref_mm), gate_mm=gate, sample_move=mv, on_feed=feed,
+                                  program=ran, profile=profile)
     cover = sig.valid.sum() / max(sig.valid.size, 1)
     if sig.valid.size and cover < MIN_COVERAGE:
         raise LogError(src, None, f"the log measures only {cover:.0%} of the {sig.valid.size} G01 commands of"

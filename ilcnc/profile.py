@@ -628,8 +628,10 @@ SPECS: tuple[Spec, ...] = (
         " minus the actual position where the machine passes closest to it (seed 004's point error); contour:"
         " exact contour error vector when the reference reaches the end of command k (seed 000's ACE);"
         " tangent: seed 000's Frenet-frame estimate at that instant; tracking: end point minus actual at that"
-        " instant (seed 003); auto: path for p, contour for pid_ace, tracking for second_order.",
-        ("auto", "path", "crossing", "contour", "tangent", "tracking"),
+        " instant (seed 003); lifted: the end-point moves that, through the drive models, best cancel the"
+        " sampled contour error (damped least squares; sees corners; docs/learning.md); auto: path for p (lifted"
+        " when the program is refined: learn --refine), contour for pid_ace, tracking for second_order.",
+        ("auto", "path", "crossing", "contour", "tangent", "tracking", "lifted"),
         default="auto",
     ),
     _f("learning.iterations", "Largest number of learning iterations.", "", 1, 1000, default=5, kind="int"),

@@ -207,7 +207,8 @@ def _default_state_dir(out: Path) -> Path:
     return out.with_name(out.name + ".state")
 
 
-def _new_state(directory: Path, program: Program, data: bytes, profile: MachineProfile, profile_sha: str) -> LearnState:
+def _new_state(directory: Path, program: Program, data: bytes, profile: MachineProfile, profile_sha: str, *,
+               refined: bool = False) -> LearnState:
     if directory.exists() and not directory.is_dir():
         raise StateError(directory, None, "exists and is not a directory")
     if not directory.parent.is_dir():
@@ -219,7 +220,7 @@ def _new_state(directory: Path, program: Program, data: bytes, profile: MachineP
     st = LearnState(directory, {"name": program.path.name, "sha256": sha256_bytes(data), "file": f"original{suffix}",
                                 "dialect": program.dialect, "units": program.units, "commands": program.n_commands,
                                 "suffix": suffix},
-                    profile.learning.law, error_kind(profile), profile_sha)
+                    profile.learning.law, error_kind(profile, refined=refined), profile_sha)
     st.write_file(st.part["file"], data)
     return st
 
@@ -365,7 +366,8 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
         original = read_program(req.program, default_units=profile.machine.units, data=data)
         _out_suffix_matches(original, req.out)  # before refining: a refusal costs no run
         refinement = refine_for_learning(original, profile) if refine else None  # before the state: a refusal makes none
-        state = _new_state(state_dir, original, data, profile, profile_sha)
+        state = _new_state(state_dir, original, data, profile, profile_sha,
+                           refined=refinement is not None and refinement.inserted.n_inserted > 0)
         if refinement is not None:
             _store_refinement(state, refinement)
             notes.extend(refinement.notes())
@@ -373,7 +375,8 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
     learning = _learning_program(state, original, profile)
     writer = _record_writer(state, learning)
     result = learn_virtual(learning, profile, iterations=req.iterations, keep_runs=req.report is not None,
-                           initial_corrections_mm=u0, first_iteration=first, progress=progress, on_record=writer)
+                           initial_corrections_mm=u0, first_iteration=first, progress=progress, on_record=writer,
+                           error=state.error)
     best_rec = result.best_record
     out = _write_output(req, best_rec.text, original, state.part["sha256"], best_rec.iteration)
     for e in state.iterations:
@@ -534,7 +537,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         refinement = None
         if req.refine or (profile.learning.refine.enabled == "on" and req.log is not None):
             refinement, refined_log = _refine_from_log(req, profile, original)  # refused before any state is made
-        state = _new_state(req.state, original, data, profile, profile_sha)
+        state = _new_state(req.state, original, data, profile, profile_sha,
+                           refined=refinement is not None and refinement.inserted.n_inserted > 0)
         made.append(req.state)
         first_data = data
         if refinement is not None:
@@ -642,7 +646,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         u_new, clips, ms = model_assisted_correction(learner, u_hist[-1], s_hist[-1], u_new, clips, steps,
                                                      scale=state.gain_scale)
         why = {"steps": "", "no gain": ": the next would not lower the predicted error",
-               "law": f": the {profile.learning.law} law keeps a history"}[ms.reason]
+               "law": f": the {profile.learning.law} law keeps a history",
+               "kind": f": the virtual CNC does not predict the {state.error} estimate"}[ms.reason]
         notes.append(f"model-assisted step: {ms.made} of {steps} virtual-CNC steps kept{why}; RMS |E(k)| measured"
                      f" {ms.predicted_rms_mm[0] * 1e3:.2f} µm, predicted "
                      + " → ".join(f"{r * 1e3:.2f}" for r in ms.predicted_rms_mm[1:]) + " µm")

@@ -1,0 +1,118 @@
+"""The ``lifted`` error estimate (ilcnc.lifted_error): it sees corners, its step lowers the sampled error."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import yaml
+
+from ilcnc.command_error import error_kind, reference_command_samples, signal_of_simulation
+from ilcnc.learn import Learner, learn_virtual, refine_for_learning
+from ilcnc.lifted_error import lifted_error
+from ilcnc.profile import load_profile
+from ilcnc.program import read_program
+from ilcnc.simulate import simulate_program
+
+from .conftest import OWN, REPO
+
+MILL = REPO / "configs" / "example-mill.yaml"
+
+
+@pytest.fixture(scope="module")
+def square_run():
+    profile = load_profile(MILL)
+    prog = refine_for_learning(read_program(OWN / "square.ngc"), profile).program
+    sim = simulate_program(prog, profile)
+    return profile, prog, sim
+
+
+def _estimate(profile, prog, sim, err=None, free=None):
+    ref = sim.reference
+    lrn = Learner.for_program(prog, profile)
+    return lifted_error(program=prog, profile=profile, path=sim.error.path, err=err if err is not None else sim.error,
+                        ref_mm=ref.pos_mm, sample_move=ref.move, weight=sim.feed_mask,
+                        command_sample=reference_command_samples(ref.move, prog.command_moves), t_s=ref.period_s,
+                        free=lrn.free_coordinates() if free is None else free)
+
+
+def test_auto_is_lifted_on_refined_programs_only():
+    profile = load_profile(MILL)
+    assert error_kind(profile) == "path"
+    assert error_kind(profile, refined=True) == "lifted"
+    fixed = dataclasses.replace(profile, learning=dataclasses.replace(profile.learning, error="crossing"))
+    assert error_kind(fixed, refined=True) == "crossing"
+
+
+def test_profile_accepts_lifted(tmp_path):
+    data = yaml.safe_load(MILL.read_text())
+    data["learning"]["error"] = "lifted"
+    p = tmp_path / "m.yaml"
+    p.write_text(yaml.safe_dump(data))
+    assert load_profile(p).learning.error == "lifted"
+
+
+def test_estimate_is_linear_in_the_error_and_zero_where_not_free(square_run):
+    """Inside the trust region (no move turned by more than MAX_TURN_RAD) the estimate is a linear solve: twice
+    the sampled error gives twice E (to the rounding of the sparse solve: 1e-9 relative is far above its ulps);
+    a coordinate the learning may not move gets no share of it."""
+    profile, prog, sim = square_run
+    e0, _t, ok = _estimate(profile, prog, sim)
+    assert ok.any() and np.abs(e0).max() > 1e-3  # the square's corners err by tens of µm: E sees them
+    small = dataclasses.replace(sim.error, vector_mm=1e-3 * sim.error.vector_mm)  # far inside the trust region
+    double = dataclasses.replace(sim.error, vector_mm=2e-3 * sim.error.vector_mm)
+    e1, _t, _ok = _estimate(profile, prog, sim, err=small)
+    e2, _t, _ok = _estimate(profile, prog, sim, err=double)
+    np.testing.assert_allclose(e2, 2.0 * e1, rtol=1e-9, atol=1e-18)
+    free = Learner.for_program(prog, profile).free_coordinates()
+    free[:, 0] = False
+    e3, _t, _ok = _estimate(profile, prog, sim, free=free)
+    assert np.all(e3[:, 0] == 0.0) and np.abs(e3[:, 1]).max() > 0
+
+
+def test_lifted_sees_the_corner_path_dilutes(square_run):
+    """At the refined square's 90° corners the path estimate is diluted by the error-free sides; lifted asks for
+    the whole move that cancels the corner's error (measured: 12.7 µm against 8.1 µm)."""
+    profile, prog, sim = square_run
+    e_l = signal_of_simulation(sim, prog, "lifted", profile=profile,
+                               free=Learner.for_program(prog, profile).free_coordinates())
+    e_p = signal_of_simulation(sim, prog, "path")
+    mv = prog.moves
+    cm = prog.command_moves
+    d_in = mv.end_mm[cm[:-1]] - mv.start_mm[cm[:-1]]
+    d_out = mv.end_mm[cm[:-1] + 1] - mv.start_mm[cm[:-1] + 1]
+    corner = np.flatnonzero((np.einsum("ij,ij->i", d_in, d_out) == 0) & (np.abs(d_in[:, 2]) == 0)
+                            & (np.abs(d_out[:, 2]) == 0))  # the square's three 90° corners in XY
+    assert corner.size == 3
+    assert np.all(e_l.norm_mm[corner] > 1.4 * e_p.norm_mm[corner])
+
+
+def test_lifted_learns_the_refined_square_where_path_stalls():
+    """Two virtual iterations of the refined square, the same Γ = 1: lifted lowers the cutting moves' max further
+    than path (measured: lifted 31.1 -> 19.4 µm, path 31.1 -> 22.5 µm)."""
+    profile = load_profile(MILL)
+    # Γ = 1: the lifted estimate is a whole Gauss-Newton step (the profile's 0.5 takes half of it)
+    profile = dataclasses.replace(profile, learning=dataclasses.replace(profile.learning, gains={"gamma": 1.0}))
+    prog = refine_for_learning(read_program(OWN / "square.ngc"), profile).program
+    best = {}
+    for kind in ("path", "lifted"):
+        res = learn_virtual(prog, profile, iterations=2, error=kind, stop_on_stall=False)
+        best[kind] = res.best_record.stats["max"] / res.iterations[0].stats["max"]
+    assert best["lifted"] < 0.7
+    assert best["lifted"] < best["path"] - 0.05
+
+
+@pytest.mark.parametrize("name", ["square.ngc", "jsdc.gcode"])
+def test_refined_learning_with_lifted_lowers_the_cutting_error(name):
+    """Two virtual iterations on the refined program: the cutting moves' RMS and max fall, every run kept, the
+    cycle time within 1 % (measured: square RMS 3.65 -> 2.17 µm, jsdc 6.23 -> 0.9 µm)."""
+    profile = load_profile(MILL)
+    src = OWN / name if (OWN / name).exists() else REPO / "samples" / name
+    prog = refine_for_learning(read_program(src), profile).program
+    res = learn_virtual(prog, profile, iterations=2, error="lifted", stop_on_stall=False)
+    first, best = res.iterations[0], res.best_record
+    assert best.iteration >= 1
+    assert best.stats["rms"] < 0.8 * first.stats["rms"]
+    assert best.stats["max"] < first.stats["max"]
+    assert best.cycle_time_s <= 1.01 * first.cycle_time_s
