@@ -6,6 +6,8 @@ then the output judged independently by ``ilcnc simulate OUT --against PROG`` an
 cycle time change, without and with ``--refine`` (the same run, so the ratios compare like with like)::
 
     python bench/refine.py [PROG ...]          # default: the four programs of the issue
+    python bench/refine.py --arcs [PROG ...]   # refine with learning.refine.arcs: on (a profile copy)
+    python bench/refine.py --gamma 1 [PROG ...]  # refine with learning.gains.gamma: 1 (a profile copy)
 """
 
 from __future__ import annotations
@@ -30,22 +32,41 @@ def _ilcnc(*args: object) -> dict:
 
 
 def main(argv: list[str]) -> None:
+    arcs = "--arcs" in argv
+    argv = [a for a in argv if a != "--arcs"]
+    gamma = None
+    if "--gamma" in argv:
+        i = argv.index("--gamma")
+        gamma = float(argv[i + 1])
+        argv = argv[:i] + argv[i + 2:]
     programs = [Path(a) for a in argv] or DEFAULT
     resolution_um = 1.0  # configs/example-mill.yaml machine.resolution_mm
     print(f"{'program':28s} {'mode':8s} {'max um':>16s} {'max':>6s} {'RMS um':>14s} {'RMS':>6s} {'cycle':>7s} {'lines+':>6s}")
     with tempfile.TemporaryDirectory() as tmp:
+        profile = PROFILE
+        if arcs or gamma is not None:
+            import yaml
+
+            data = yaml.safe_load(PROFILE.read_text())
+            if arcs:
+                data["learning"].setdefault("refine", {})["arcs"] = "on"
+            if gamma is not None:
+                data["learning"]["gains"] = {"gamma": gamma}
+            profile = Path(tmp) / "example-mill-variant.yaml"
+            profile.write_text(yaml.safe_dump(data))
         for prog in programs:
-            base = _ilcnc("simulate", prog, "--profile", PROFILE)
+            base = _ilcnc("simulate", prog, "--profile", profile)
             b = base["contour_error_mm"]
-            for mode in ("plain", "refine"):
+            for mode in (("refine",) if arcs or gamma is not None else ("plain", "refine")):
                 out = Path(tmp) / f"{mode}-{prog.stem}{prog.suffix}"
                 extra = ["--refine"] if mode == "refine" else []
-                run = _ilcnc("learn", prog, "--profile", PROFILE, "--out", out, "--iterations", 5, *extra)
-                judged = _ilcnc("simulate", out, "--profile", PROFILE, "--against", prog)
+                run = _ilcnc("learn", prog, "--profile", profile, "--out", out, "--iterations", 5, *extra)
+                judged = _ilcnc("simulate", out, "--profile", profile, "--against", prog)
                 a = judged["contour_error_mm"]
                 inserted = (run.get("refined") or {}).get("inserted_lines", 0)
                 floor = " (at the floor)" if a["max"] * 1e3 <= 2 * resolution_um else ""
-                print(f"{prog.name[:28]:28s} {mode:8s} {b['max'] * 1e3:7.2f} -> {a['max'] * 1e3:6.2f}"
+                label = ("arcs " if arcs else "") + (f"g={gamma:g}" if gamma is not None else "") or mode
+                print(f"{prog.name[:28]:28s} {label:8s} {b['max'] * 1e3:7.2f} -> {a['max'] * 1e3:6.2f}"
                       f" {a['max'] / b['max'] - 1:+6.0%} {b['rms'] * 1e3:6.2f} -> {a['rms'] * 1e3:5.2f}"
                       f" {a['rms'] / b['rms'] - 1:+6.0%} {judged['cycle_time_s'] / base['cycle_time_s'] - 1:+7.2%}"
                       f" {inserted:6d}{floor}", flush=True)

@@ -557,6 +557,8 @@ class Learner:
             u_next[~self.shaper.correctable] = 0.0
             if self.free is not None:
                 u_next[~self.free] = 0.0
+            # the limiter moves an end point with its start: an arc's start must stay on its circle
+            u_next = keep_arcs_valid(u_next, self.arc_sel, self.arc_geo)
         # a correction finer than the machine's resolution cannot be programmed: round it off
         # (so a coordinate that would only move by noise is not rewritten at all)
         res = self.profile.machine.resolution_mm
@@ -899,7 +901,8 @@ class Refinement:
         """One line each for the user: what was inserted where, what was left alone and why, the cost."""
         js = self.plan.summary()
         out = [f"refined: {self.inserted.n_inserted} lines inserted on {js['moves_split']} moves at {js['corners']}"
-               f" corners and {js['rapids']} feed starts after a rapid (first-run error >= {js['threshold_mm'] * 1e3:.1f}"
+               f" corners, {js['arcs']} arc junctions and {js['rapids']} feed starts after a rapid"
+               f" (first-run error >= {js['threshold_mm'] * 1e3:.1f}"
                f" µm); planned cycle time {self.cycle_time_s[0]:.2f} -> {self.cycle_time_s[1]:.2f} s"
                f" ({self.cycle_change:+.2%})"]
         for reason, n in sorted(js["passed"].items()):

@@ -59,6 +59,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ilcnc.program.model import MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE
+
 __all__ = ["DAMPING", "lifted_error"]
 
 #: Relative damping ``ρ`` of each command's correction (see the module docstring).
@@ -219,7 +221,9 @@ def lifted_error(
         vals: list[NDArray[np.float64]] = []
         for k in range(kk):
             mk = int(cm[k])
-            nxt = mk + 1 if (mk + 1 < nm and joined[mk]) else mk
+            # the next move carries the hat when it is a straight move that starts here; an arc's start
+            # may only slide along its circle, which moves the arc's points along the circle (no error)
+            nxt = mk + 1 if (mk + 1 < nm and joined[mk] and moves.kind[mk + 1] == MOVE_LINE) else mk
             a0, a1 = int(first[mk]), int(last[nxt])
             if a1 <= a0:
                 continue
@@ -244,6 +248,12 @@ def lifted_error(
 
     # the normal equations over the free coordinates, axis-major blocks
     free = np.asarray(free, dtype=bool) & np.isin(np.arange(3), axes)[None, :]
+    # an end point that starts an arc may only slide along the arc's circle (the rewriter keeps the arc's centre
+    # and end: ilcnc.learn.keep_arcs_valid). That slide moves the arc's points along the circle: it re-times
+    # the path and shapes no error, and the hat of a straight move does not model it. Held.
+    nx_all = np.minimum(cm + 1, nm - 1)
+    arc_next = joined[cm] & (cm + 1 < nm) & ((moves.kind[nx_all] == MOVE_ARC_CW) | (moves.kind[nx_all] == MOVE_ARC_CCW))
+    free = free & ~arc_next[:, None]
     energy = np.zeros((kk, 3))
     blocks: dict[tuple[int, int], Any] = {}
     rhs = np.zeros((kk, 3))
@@ -312,28 +322,41 @@ def lifted_error(
         ell = np.linalg.norm(din, axis=1)
         v = np.nan_to_num(np.asarray(moves.feed_mm_min, dtype=np.float64)[cm], nan=0.0) / 60.0
         short = ell <= 1e-6
-        wturn = np.where(prev_ok & ~short, turn * (lag_s / period) * (v * lag_s) ** 2
-                         / np.where(short, 1.0, ell) ** 2, 0.0)
-        # a zero-length move keeps zero length: its end point moves with its start point
-        wturn[prev_ok & short] = 1e6 * max(float(energy.max()), 1.0)
-        pair = [np.flatnonzero((wturn > 0) & sel[:, a] & np.roll(sel[:, a], 1)) for a in range(3)]
+        # every straight move turns when its end or its start moves (a start after an arc, a rapid or a held
+        # point is fixed: the turn is the end's move alone)
+        wturn = np.where(~short, turn * (lag_s / period) * (v * lag_s) ** 2 / np.where(short, 1.0, ell) ** 2, 0.0)
+        # a zero-length move keeps zero length: its end point moves with its start point (or not at all)
+        wturn[short] = 1e6 * max(float(energy.max()), 1.0)
+        k_all = np.arange(kk)
         sol = np.zeros(n)
         for _pass in range(TRUST_PASSES):
             di, dj, dv = [], [], []
             for a in axes:
-                k1 = pair[a]
+                end_free = sel[:, a]
+                start_free = prev_ok & np.roll(sel[:, a], 1)
+                both = end_free & start_free
+                k1 = k_all[both]
                 wgt = wturn[k1]
                 i1, i0 = idx[k1, a], idx[k1 - 1, a]
                 di += [i1, i0, i1, i0]
                 dj += [i1, i0, i0, i1]
                 dv += [wgt, wgt, -wgt, -wgt]
+                ke = k_all[end_free & ~start_free]
+                di.append(idx[ke, a])
+                dj.append(idx[ke, a])
+                dv.append(wturn[ke])
+                ks = k_all[start_free & ~end_free]
+                di.append(idx[ks - 1, a])
+                dj.append(idx[ks - 1, a])
+                dv.append(wturn[ks])
             pen = sp.csc_matrix((np.concatenate(dv), (np.concatenate(di), np.concatenate(dj))), shape=(n, n))
             sol = spsolve((base + pen).tocsc(), rhs[sel])
             du = np.zeros((kk, 3))
             du[sel] = sol
-            step = np.zeros(kk)
-            step[1:] = np.linalg.norm(du[1:] - du[:-1], axis=1)
-            over = prev_ok & ~short & (step > MAX_TURN_RAD * ell)
+            du_prev = np.zeros((kk, 3))
+            du_prev[1:] = np.where(prev_ok[1:, None], du[:-1], 0.0)
+            step = np.linalg.norm(du - du_prev, axis=1)
+            over = ~short & (step > MAX_TURN_RAD * ell)
             if not over.any():
                 break
             wturn[over] *= 10.0

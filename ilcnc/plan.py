@@ -64,9 +64,10 @@ corner, as LinuxCNC's trajectory planner does (``tp.c``/``tc.c``, 2.9):
   commands are never merged.
 
 Compared with LinuxCNC 2.9 (``configs/linuxcnc-sim``, 100 mm/s, 1000 mm/s²):
-on jscut's ``jsdc.gcode`` with ``G64`` the planned path is 12 µm RMS (234 µm
-at most) from LinuxCNC's and 1.3 % slower; with ``G64 P0.05`` 2.3 µm RMS
-(26 µm at most), 3.5 % slower; a square in ``G61`` is 0.1 µm from it. Where the
+on jscut's ``jsdc.gcode`` with ``G64`` the planned path is 14 µm RMS (233 µm
+at most) from LinuxCNC's and 1.0 % slower; with ``G64 P0.05`` 2.4 µm RMS
+(26 µm at most), 3.5 % slower (measured 2026-12-01, after short moves stopped
+running whole at their slower corner's speed); a square in ``G61`` is 0.1 µm from it. Where the
 virtual CNC must move as LinuxCNC does (its corners and short moves decide the
 error), ``planner.profile: linuxcnc`` plans with LinuxCNC's own rules instead
 (:mod:`ilcnc.plan_tp`).
@@ -1394,8 +1395,9 @@ def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[n
 
     A zone long enough for the filters to finish the speed change before the
     corner (``v_corner * span``) runs at the corner speed; the rest of the move
-    at its own speed. Moves too short for zones run at the slowest speed that
-    touches them. A junction whose speed is 0 (an exact stop, tolerance 0) is a
+    at its own speed. A move too short for both zones keeps the slower
+    junction's zone (its full length, or the move) and runs the rest at the
+    faster junction's speed. A junction whose speed is 0 (an exact stop, tolerance 0) is a
     dwell of one filter span at the vertex: the filters then stop the axes
     there and the path passes through the vertex exactly. A move with a stand-still
     ``hold_s > 0`` (a zero-length inverse-time block) is one piece of speed 0 lasting that long.
@@ -1414,9 +1416,21 @@ def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[n
     short = (zin + zout >= move_len) | ((span_s == 0.0) & slow)
     lens = np.stack([zin, move_len - zin - zout, zout, np.zeros(n)], axis=1)
     spds = np.stack([v_in, v, v_out, np.zeros(n)], axis=1)
-    lens[short, 0] = move_len[short]
-    lens[short, 1:3] = 0.0
-    spds[short, 0] = np.minimum(np.minimum(v_in[short], v_out[short]), v[short])
+    # a move too short for both zones: the slower junction's zone keeps its length (the filters finish the
+    # speed change before that corner, as on a long move), the rest runs at the faster junction's speed. Not
+    # the whole move at the slower speed: that makes the plan jump with the geometry (a point moved by 1 µm
+    # that breaks a collinear chain made a 0.07 mm move before a reversal crawl for 0.3 s)
+    end_slow = v_out <= v_in
+    z_slow = np.minimum(np.where(end_slow, zout, zin), move_len)
+    rest = move_len - z_slow
+    lens[short] = 0.0
+    spds[short] = 0.0
+    i_s = np.flatnonzero(short & end_slow)
+    lens[i_s, 0], spds[i_s, 0] = rest[i_s], v_in[i_s]
+    lens[i_s, 2], spds[i_s, 2] = z_slow[i_s], v_out[i_s]
+    i_s = np.flatnonzero(short & ~end_slow)
+    lens[i_s, 0], spds[i_s, 0] = z_slow[i_s], v_in[i_s]
+    lens[i_s, 2], spds[i_s, 2] = rest[i_s], v_out[i_s]
     with np.errstate(divide="ignore", invalid="ignore"):
         durs = np.where(lens > 0, lens / spds, 0.0)
     durs[:, 3] = np.where(stop_after, span_s, 0.0)

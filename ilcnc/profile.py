@@ -707,6 +707,10 @@ SPECS: tuple[Spec, ...] = (
     _f("learning.refine.min_error_mm", "Least contour error of the first run at a corner or rapid for it to be"
        " refined. Absent: twice the machine's resolution (below it the error is at the physical floor).", "mm", 0, 10,
        default=None, default_doc="2 × machine.resolution_mm"),
+    _c("learning.refine.arcs", "Also refine the straight feeds next to arcs (their end points are an arc's only"
+       " handles). Off by default: on Gates_combined_R12 (0.5 mm fillets) it inserted 27,478 lines and the"
+       " corrections near the arcs cost +21 % cycle time for -39 % RMS (docs/learning.md).", ("off", "on"),
+       default="off"),
     _f("learning.refine.min_spacing_periods", "Least distance of an inserted point from another end point, in servo"
        " periods of motion at the move's feed (a controller runs at most one block per period).", "", 1, 1000,
        default=3.0),
@@ -1257,6 +1261,8 @@ class RefineSection:
         Least first-run error of a refined spot, mm (``None``: twice the resolution).
     min_spacing_periods : float
         Least spacing of end points, in servo periods of motion at the feed.
+    arcs : str
+        ``"on"``: also refine the straight feeds next to arcs.
     """
 
     enabled: str = _default("learning.refine.enabled")
@@ -1265,6 +1271,7 @@ class RefineSection:
     max_lines: int = _default("learning.refine.max_lines")
     min_error_mm: float | None = _default("learning.refine.min_error_mm")
     min_spacing_periods: float = _default("learning.refine.min_spacing_periods")
+    arcs: str = _default("learning.refine.arcs")
 
     def to_dict(self) -> dict[str, Any]:
         out = {k: v for k, v in vars(self).items() if v is not None}

@@ -53,7 +53,7 @@ from numpy.typing import NDArray
 from ilcnc.air import MOVE_CUT
 from ilcnc.errors import InputError
 from ilcnc.profile import MachineProfile
-from ilcnc.program.model import MOVE_LINE, MOVE_RAPID, Program
+from ilcnc.program.model import MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, Program
 
 __all__ = ["RefinePlan", "RefineSite", "plan_refinement", "refine_threshold_mm"]
 
@@ -68,12 +68,12 @@ ZONE_MARGIN = 1.05
 
 @dataclass(frozen=True, slots=True)
 class RefineSite:
-    """One refined spot: a corner or the start of a feed after a rapid.
+    """One refined spot: a corner, the start of a feed after a rapid, or a straight feed's junction with an arc.
 
     Attributes
     ----------
     kind : str
-        ``corner`` or ``rapid``.
+        ``corner``, ``rapid`` or ``arc`` (a straight feed next to an arc).
     line : int
         Source line of the move that ends at the spot (the rapid, for ``rapid``).
     peak_mm : float
@@ -121,9 +121,10 @@ class RefinePlan:
         return sum(len(v) for v in self.points.values())
 
     def summary(self) -> dict[str, Any]:
-        kinds = {k: sum(1 for s in self.sites if s.kind == k) for k in ("corner", "rapid")}
+        kinds = {k: sum(1 for s in self.sites if s.kind == k) for k in ("corner", "rapid", "arc")}
         return {"points": self.n_points, "moves_split": len(self.points), "corners": kinds["corner"],
-                "rapids": kinds["rapid"], "threshold_mm": self.threshold_mm, "passed": dict(self.passed)}
+                "rapids": kinds["rapid"], "arcs": kinds["arc"], "threshold_mm": self.threshold_mm,
+                "passed": dict(self.passed)}
 
 
 def refine_threshold_mm(profile: MachineProfile) -> float:
@@ -216,6 +217,7 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
     length = np.linalg.norm(d_vec, axis=1)
     tangent = _unit(d_vec)
     straight = (mv.kind == MOVE_LINE) & (mv.command >= 0) & (classes == MOVE_CUT)
+    arc = (mv.kind >= MOVE_ARC_CW) & (classes == MOVE_CUT)
     feed_mm_s = np.nan_to_num(mv.feed_mm_min, nan=0.0) / 60.0
     cos_limit = math.cos(math.radians(cfg.corner_angle_deg))
     # samples by move, once: the foot's move sorted, so each move's samples are a slice
@@ -228,6 +230,10 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
         idx = order[bounds[move]:bounds[move + 1]]
         s, d = _side_profile(dist[idx], sg[idx], frac[idx], length, move, from_end)
         return _stretch(s, d, limit, plan.threshold_mm)
+
+    def arc_peak(move: int) -> float:
+        idx = order[bounds[move]:bounds[move + 1]]
+        return float(np.max(dist[idx])) if idx.size else 0.0
 
     def place(move: int, dists: list[float], from_end: bool) -> int:
         fr = [1.0 - x / length[move] if from_end else x / length[move] for x in dists]
@@ -248,9 +254,34 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
             if float(tangent[i] @ tangent[j]) > cos_limit:
                 continue
             kind = "corner"
+        elif cfg.arcs == "on" and ((straight[i] and arc[j]) or (arc[i] and straight[j])):
+            kind = "arc"  # a straight feed next to an arc: its end points are the arc's only handles
         else:
             continue
         room_j = MAX_MOVE_SHARE * length[j]
+        if kind == "arc":
+            # the arc's own error (no end point on it can move) and the straight side's stretch from the junction
+            line, from_end = (i, True) if straight[i] else (j, False)
+            peak_a = arc_peak(j if straight[i] else i)
+            peak_l, st_l = side(line, from_end, MAX_MOVE_SHARE * length[line])
+            peak = max(peak_a, peak_l)
+            if peak < plan.threshold_mm:
+                plan.passed["below threshold"] = plan.passed.get("below threshold", 0) + 1
+                continue
+            # the arc bends the path within the lag: the straight side's stretch starts at the junction
+            st_l = max(st_l, spacing(line))
+            if from_end:
+                near = max(spacing(line), ZONE_MARGIN * zone_out[line] + 1e-3)
+                room = min(MAX_MOVE_SHARE * length[line], length[line] - ZONE_MARGIN * zone_in[line] - 1e-3)
+            else:
+                near = max(spacing(line), ZONE_MARGIN * zone_in[line] + 1e-3)
+                room = min(MAX_MOVE_SHARE * length[line], length[line] - ZONE_MARGIN * zone_out[line] - 1e-3)
+            n = place(line, _distances(st_l, cfg.points_per_side, spacing(line), near, room), from_end)
+            if n == 0:
+                plan.passed["moves too short"] = plan.passed.get("moves too short", 0) + 1
+                continue
+            plan.sites.append(RefineSite(kind, int(mv.line[i]), peak, (st_l, 0.0) if from_end else (0.0, st_l), n))
+            continue
         peak_j, st_j = side(j, False, room_j)
         peak_i, st_i = (side(i, True, MAX_MOVE_SHARE * length[i]) if kind == "corner" else (0.0, 0.0))
         peak = max(peak_i, peak_j)

@@ -200,3 +200,21 @@ def test_the_measured_workflow_refines_from_the_log_of_the_original(tmp_path: Pa
     errors = [ln for ln in msg.splitlines() if ln.strip()]
     assert code == 1 and len(errors) == 1 and "again.csv" in errors[0] and "log of another program" in errors[0]
     assert {p.name: p.read_bytes() for p in state.iterdir()} == before and not (tmp_path / "x.gcode").exists()
+
+
+def test_refine_arcs_on_places_points_next_to_arcs(tmp_path):
+    """learning.refine.arcs: on refines the straight feeds next to Gates' 0.5 mm fillets (off by default: none);
+    the refined program runs the same path (insert_points checks it on the program read back)."""
+    import dataclasses
+
+    profile = load_profile(MILL)
+    src = SAMPLES / "contour" / "Gates_combined_R12.nc"
+    head = src.read_bytes().split(b"\n")[:60] + [b"G0 Z3.0", b"M2", b""]
+    prog = read_program(tmp_path / "gates-head.nc", data=b"\n".join(head))
+    off = refine_for_learning(prog, profile)
+    on_profile = dataclasses.replace(profile, learning=dataclasses.replace(
+        profile.learning, refine=dataclasses.replace(profile.learning.refine, arcs="on")))
+    on = refine_for_learning(prog, on_profile)
+    assert off.plan.summary()["arcs"] == 0
+    assert on.plan.summary()["arcs"] > 0 and on.inserted.n_inserted > off.inserted.n_inserted
+    assert on.program.n_commands == prog.n_commands + on.inserted.n_inserted

@@ -72,13 +72,13 @@ def test_real_cam_contour(tmp_path: Path) -> None:
     src = tmp_path / "jsdc.ngc"
     src.write_bytes(b"G64 P0.05 Q0\n" + (SAMPLES / "gcode" / "jsdc.gcode").read_bytes() + b"\nM2\n")
     diff, dt = _compare(src, 0.05, tmp_path)
-    assert diff <= 2 * 0.05 + 0.005  # each within P of the program: measured 51 µm apart at most
-    assert abs(dt) < 0.10  # measured +3.1 %
+    assert diff <= 2 * 0.05 + 0.005  # each within P of the program: measured 26 µm apart at most
+    assert abs(dt) < 0.10  # measured +3.5 %
 
 
 # planner.profile linuxcnc (ilcnc/plan_tp.py): LinuxCNC's own planning rules. Measured 2026-11-23 against
 # the logs of the same programs: the square's blend arcs within 1.3 µm of LinuxCNC's and 1.1 % faster;
-# jsdc in plain G64 0.4 % faster (the filter planner: 1.3 % slower) and its per-command error predicted with
+# jsdc in plain G64 0.4 % faster (the filter planner: 1.3 % slower; 1.0 % since 2026-12-01) and its per-command error predicted with
 # correlation 0.986 (docs/papers.md, "Real controller")
 
 
