@@ -612,7 +612,7 @@ def _replan_group(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: NDAr
         lo_s, hi_s = _violation_window(bad, extra + 3, n + 1)
         lo_g, hi_g = (np.where(x > 0, np.searchsorted(cum, x - 1, side="right"), 0) for x in (lo_s, hi_s))
         scale[_slower_moves(lo_g, hi_g, idx.shape[0], g.chain)] *= 0.8
-        pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold)
+        pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold, g.chain)
     return _GroupPass(gs, ge, arcs, start, lens, extra, pieces, n, t_end, total, counts, scale, thr_a, thr_j)
 
 
@@ -1026,9 +1026,10 @@ def _group_setup(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], lengt
     vj, v_move = _corner_limits(moves, idx, length, t_in, t_out, limits, default_tol_mm, filt_s, v, hold > 0.0, join)
     v = np.minimum(v, v_move)
     span_s = sum(filt_s)
-    first = _pieces(length[idx], v * np.ones(idx.shape[0]), vj, span_s, hold)
+    chain = _chain_ids(join)
+    first = _pieces(length[idx], v * np.ones(idx.shape[0]), vj, span_s, hold, chain)
     size = _ideal_samples(first[4], period_s)[0] + sum(n - 1 for n in lengths)
-    return _GroupSetup(idx, v, vj, hold, lengths, span_s, first, size, _chain_ids(join))
+    return _GroupSetup(idx, v, vj, hold, lengths, span_s, first, size, chain)
 
 
 def _ideal_samples(dur: NDArray[np.float64], period_s: float) -> tuple[int, NDArray[np.float64], float]:
@@ -1096,7 +1097,7 @@ def _plan_group_numpy(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: 
         lo_s, hi_s = _violation_window(bad, total, mv_sig.shape[0])
         scale[_slower_moves(np.searchsorted(idx, mv_sig[lo_s]), np.searchsorted(idx, mv_sig[hi_s]), idx.shape[0],
                             g.chain)] *= 0.8
-        pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold)
+        pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold, g.chain)
     n_out = out.shape[0] - 1
     buf = _reserve(buf, at + n_out)
     buf[at:at + n_out] = out[1:]
@@ -1389,8 +1390,52 @@ def _zones(v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float
     return v_in, v_out, np.where(v_in < v, v_in * span_s, 0.0), np.where(v_out < v, v_out * span_s, 0.0)
 
 
+def _chain_zones(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float,
+                 chain: NDArray[np.int64], lens: NDArray[np.float64], spds: NDArray[np.float64]) -> None:
+    """The slow zones of collinear chains (a straight line split into moves), laid over their moves in place.
+
+    A chain's corner zones are those of the line it is: its first move's entry speed, its last move's exit
+    speed, its whole length (the same short-line rule as one move). A move of the chain takes the parts of
+    the zones that lie on it; its own speed elsewhere. So a point inserted anywhere on a line, even inside a
+    corner's slow zone, leaves the plan as it was (refinement, :mod:`ilcnc.refine`). A join the planner
+    stops at (an exact stop) or slows at is not a chain join here. Moves alone in their chain keep what
+    :func:`_pieces` gave them (bit for bit).
+    """
+    n = move_len.shape[0]
+    # a join limits nothing unless the planner stops or slows there (a written point is collinear to 0.05 µm)
+    brk = np.concatenate(([True], (chain[1:] != chain[:-1]) | (vj <= 0.0) | (vj < np.minimum(v[:-1], v[1:]))))
+    zc = np.cumsum(brk) - 1
+    first = np.flatnonzero(brk)
+    last = np.concatenate((first[1:] - 1, [n - 1]))
+    multi = (last > first)[zc]
+    if not multi.any():
+        return
+    lc = np.bincount(zc, weights=move_len)
+    vj_slow = np.where(vj <= 0.0, np.inf, vj)
+    v_in_c = np.minimum(v[first], np.concatenate(([np.inf], vj_slow))[first])
+    v_out_c = np.minimum(v[last], np.concatenate((vj_slow, [np.inf]))[last])
+    zin_c = np.where(v_in_c < v[first], v_in_c * span_s, 0.0)
+    zout_c = np.where(v_out_c < v[last], v_out_c * span_s, 0.0)
+    short_c = zin_c + zout_c >= lc
+    end_slow = v_out_c <= v_in_c
+    zs = np.minimum(np.where(end_slow, zout_c, zin_c), lc)
+    zin_c = np.where(short_c, np.where(end_slow, lc - zs, zs), zin_c)
+    zout_c = np.where(short_c, np.where(end_slow, zs, lc - zs), zout_c)
+    cs = np.cumsum(move_len)
+    o = (cs - move_len) - (cs - move_len)[first][zc]
+    m = np.flatnonzero(multi)
+    ln = move_len[m]
+    z_in = np.clip(zin_c[zc[m]] - o[m], 0.0, ln)
+    z_out = np.clip(o[m] + ln - (lc[zc[m]] - zout_c[zc[m]]), 0.0, ln)
+    z_out = np.minimum(z_out, ln - z_in)
+    lens[m, 0], lens[m, 1], lens[m, 2] = z_in, ln - z_in - z_out, z_out
+    spds[m, 0] = np.minimum(v_in_c[zc[m]], v[m])
+    spds[m, 1] = v[m]
+    spds[m, 2] = np.minimum(v_out_c[zc[m]], v[m])
+
+
 def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float,
-            hold_s: NDArray[np.float64] | None = None) -> _Pieces:
+            hold_s: NDArray[np.float64] | None = None, chain: NDArray[np.int64] | None = None) -> _Pieces:
     """Split moves into zones with their speeds: slow zones before and after each junction.
 
     A zone long enough for the filters to finish the speed change before the
@@ -1431,6 +1476,8 @@ def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[n
     i_s = np.flatnonzero(short & ~end_slow)
     lens[i_s, 0], spds[i_s, 0] = z_slow[i_s], v_in[i_s]
     lens[i_s, 2], spds[i_s, 2] = rest[i_s], v_out[i_s]
+    if chain is not None and n > 1:
+        _chain_zones(move_len, v, vj, span_s, chain, lens, spds)
     with np.errstate(divide="ignore", invalid="ignore"):
         durs = np.where(lens > 0, lens / spds, 0.0)
     durs[:, 3] = np.where(stop_after, span_s, 0.0)

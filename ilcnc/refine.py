@@ -28,12 +28,11 @@ each such spot:
   corner (d, d/2, d/4, ...), at most ``points_per_side``, never closer than
   ``min_spacing_periods`` servo periods of motion at the move's feed to
   another end point (a controller runs one block per period at most; closer
-  points only cost look-ahead), and never inside the planner's slow zone at
-  the corner (:func:`ilcnc.plan.corner_zones_mm`: the length the interpolator
-  runs at the corner speed). There the refined program plans exactly as the
-  original (same reference, same cycle time), so the refined program,
-  uncorrected, cuts what the original cuts; a point inside the zone would
-  change the corner before any correction;
+  points only cost look-ahead). Inside the planner's slow zone at the corner
+  too: the planner gives a straight line split into moves the zones of the
+  line (:func:`ilcnc.plan._chain_zones`), so the refined program, uncorrected,
+  plans as the original (same reference, same cycle time) and cuts what it
+  cuts;
 * **cap**: more than ``max_lines`` points in a program is refused.
 
 The points are inserted by :func:`ilcnc.program.insert.insert_points`, which
@@ -61,9 +60,6 @@ __all__ = ["RefinePlan", "RefineSite", "plan_refinement", "refine_threshold_mm"]
 STRETCH_FRACTION = 0.2
 #: Largest share of a move that one of its corners may refine.
 MAX_MOVE_SHARE = 0.5
-#: A point stays this many slow-zone lengths from a corner (:func:`ilcnc.plan.corner_zones_mm`): the plan keeps
-#: the corner as it was.
-ZONE_MARGIN = 1.05
 
 
 @dataclass(frozen=True, slots=True)
@@ -200,11 +196,8 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
     InputError
         The refinement needs more than ``learning.refine.max_lines`` points.
     """
-    from ilcnc.plan import corner_zones_mm
-
     cfg = profile.learning.refine
     period = profile.machine.servo_period_s
-    zone_in, zone_out = corner_zones_mm(program, profile)
     mv = program.moves
     m = len(mv)
     plan = RefinePlan(threshold_mm=refine_threshold_mm(profile))
@@ -270,12 +263,7 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
                 continue
             # the arc bends the path within the lag: the straight side's stretch starts at the junction
             st_l = max(st_l, spacing(line))
-            if from_end:
-                near = max(spacing(line), ZONE_MARGIN * zone_out[line] + 1e-3)
-                room = min(MAX_MOVE_SHARE * length[line], length[line] - ZONE_MARGIN * zone_in[line] - 1e-3)
-            else:
-                near = max(spacing(line), ZONE_MARGIN * zone_in[line] + 1e-3)
-                room = min(MAX_MOVE_SHARE * length[line], length[line] - ZONE_MARGIN * zone_out[line] - 1e-3)
+            near, room = spacing(line), MAX_MOVE_SHARE * length[line]
             n = place(line, _distances(st_l, cfg.points_per_side, spacing(line), near, room), from_end)
             if n == 0:
                 plan.passed["moves too short"] = plan.passed.get("moves too short", 0) + 1
@@ -290,11 +278,9 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
             continue
         n = 0
         if kind == "corner":
-            near_i = max(spacing(i), ZONE_MARGIN * zone_out[i] + 1e-3)
-            room_i = min(MAX_MOVE_SHARE * length[i], length[i] - ZONE_MARGIN * zone_in[i] - 1e-3)
+            near_i, room_i = spacing(i), MAX_MOVE_SHARE * length[i]
             n += place(i, _distances(st_i, cfg.points_per_side, spacing(i), near_i, room_i), True)
-        near_j = max(spacing(j), ZONE_MARGIN * zone_in[j] + 1e-3)
-        room_j = min(room_j, length[j] - ZONE_MARGIN * zone_out[j] - 1e-3)
+        near_j = spacing(j)
         n += place(j, _distances(st_j, cfg.points_per_side, spacing(j), near_j, room_j), False)
         if n == 0:
             plan.passed["moves too short"] = plan.passed.get("moves too short", 0) + 1

@@ -209,7 +209,7 @@ def test_refine_arcs_on_places_points_next_to_arcs(tmp_path):
 
     profile = load_profile(MILL)
     src = SAMPLES / "contour" / "Gates_combined_R12.nc"
-    head = src.read_bytes().split(b"\n")[:60] + [b"G0 Z3.0", b"M2", b""]
+    head = [*src.read_bytes().split(b"\n")[:60], b"G0 Z3.0", b"M2", b""]
     prog = read_program(tmp_path / "gates-head.nc", data=b"\n".join(head))
     off = refine_for_learning(prog, profile)
     on_profile = dataclasses.replace(profile, learning=dataclasses.replace(

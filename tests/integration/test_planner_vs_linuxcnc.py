@@ -78,8 +78,8 @@ def test_real_cam_contour(tmp_path: Path) -> None:
 
 # planner.profile linuxcnc (ilcnc/plan_tp.py): LinuxCNC's own planning rules. Measured 2026-11-23 against
 # the logs of the same programs: the square's blend arcs within 1.3 µm of LinuxCNC's and 1.1 % faster;
-# jsdc in plain G64 0.4 % faster (the filter planner: 1.3 % slower; 1.0 % since 2026-12-01) and its per-command error predicted with
-# correlation 0.986 (docs/papers.md, "Real controller")
+# jsdc in plain G64 0.4 % faster (the filter planner: 1.3 % slower; 1.0 % since 2026-12-01) and its per-command
+# error predicted with correlation 0.986 (docs/papers.md, "Real controller")
 
 
 def test_linuxcnc_planner_square_blend_arcs(tmp_path: Path) -> None:
