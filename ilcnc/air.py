@@ -22,7 +22,11 @@ The rule (:func:`cutting_rule`), in order:
 A feed move is in the air when its lowest point (program coordinates: the
 end point minus the work offset; a helix's lowest end) lies above the top by
 more than the machine's resolution. Rapids are neither: they are never cut
-and never in a figure.
+and never in a figure. A cutting move that starts above the top (a plunge
+from the clearance height) cuts only below it: a sample whose nearest point
+on the drawing lies above the top counts with the air moves
+(:func:`air_above_mm`), so the lag of the rapid before a plunge, gone before
+the tool reaches the stock, is not a form error.
 """
 
 from __future__ import annotations
@@ -35,8 +39,8 @@ from numpy.typing import NDArray
 from ilcnc.profile import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
 
-__all__ = ["MOVE_AIR", "MOVE_CUT", "MOVE_NOT_FED", "CuttingRule", "air_command_mask", "air_commands", "cutting_rule",
-           "move_classes", "profile_cutting_rule", "profile_move_classes"]
+__all__ = ["MOVE_AIR", "MOVE_CUT", "MOVE_NOT_FED", "CuttingRule", "air_above_mm", "air_command_mask", "air_commands",
+           "cutting_rule", "move_classes", "profile_cutting_rule", "profile_move_classes"]
 
 #: Move classes (:func:`move_classes`): a rapid (no figure), a cutting feed move, a feed move in the air.
 MOVE_NOT_FED = 0
@@ -67,7 +71,8 @@ class CuttingRule:
                     " --cutting-below-z to the stock top)")
         where = {"option": "--cutting-below-z", "profile": "cutting.top_z_mm",
                  "work_z0": "work Z0, the stock top of CAM programs"}[self.source]
-        return f"feed moves above Z {self.top_z_mm:g} mm ({where}) are air moves"
+        return (f"feed moves above Z {self.top_z_mm:g} mm ({where}) are air moves, and so is the part of a"
+                " plunge above it")
 
     def to_json(self) -> dict[str, object]:
         return {"top_z_mm": self.top_z_mm, "source": self.source}
@@ -114,6 +119,18 @@ def move_classes(program: Program, rule: CuttingRule, *, resolution_mm: float = 
         air = (mv.kind != MOVE_RAPID) & (_lowest_z_mm(program) > rule.top_z_mm + resolution_mm)
         cls[air] = MOVE_AIR
     return cls
+
+
+def air_above_mm(program: Program, rule: CuttingRule, classes: NDArray[np.int8], *, resolution_mm: float = 0.0
+                 ) -> NDArray[np.float64]:
+    """Per move, the Z (the path's coordinates, mm) above which a sample of a cutting move is in the air: the
+    stock top plus the move's work offset and the resolution; +inf for air moves, rapids, and without a top."""
+    mv = program.moves
+    out = np.full(len(mv), np.inf)
+    if rule.top_z_mm is not None:
+        cut = classes == MOVE_CUT
+        out[cut] = rule.top_z_mm + mv.offset_mm[cut, 2] + resolution_mm
+    return out
 
 
 def air_commands(program: Program, classes: NDArray[np.int8]) -> NDArray[np.bool_]:

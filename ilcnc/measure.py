@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc.air import MOVE_AIR, profile_move_classes
+from ilcnc.air import MOVE_AIR, air_above_mm, profile_move_classes
 from ilcnc.command_error import CommandSignal, command_signal_from_run, measurement_gate_mm, reference_command_samples
 from ilcnc.errors import LogError
 from ilcnc.logs import AxisLog, MeasuredPoints, moves_from_lines
@@ -228,8 +228,10 @@ def measure_log(
     notes = []
     if sig.valid.size and cover < 1.0:
         notes.append(f"{int((~sig.valid).sum())} commands not measured by the log are left as they are")
-    _rule, classes = profile_move_classes(original, profile)
-    air = classes[mv_or_first] == MOVE_AIR
+    rule, classes = profile_move_classes(original, profile)
+    above = air_above_mm(original, rule, classes, resolution_mm=profile.machine.resolution_mm)
+    # an air move, or a cutting move's sample whose nearest point on the drawing is above the stock top
+    air = (classes[mv_or_first] == MOVE_AIR) | (np.nan_to_num(err.foot_mm[:, 2], nan=-np.inf) > above[mv_or_first])
     return Measurement("log", sig, _stats(np.where(air, np.nan, d)), act, err.dist_mm, err.signed_mm, err.foot_mm,
                        path_position_mm(err), feed, notes, _stats(np.where(air, d, np.nan)), err.seg, err.u)
 

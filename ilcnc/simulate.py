@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc._jit import njit
-from ilcnc.air import MOVE_CUT, MOVE_NOT_FED, CuttingRule, profile_move_classes
+from ilcnc.air import MOVE_CUT, MOVE_NOT_FED, CuttingRule, air_above_mm, profile_move_classes
 from ilcnc.errors import InputError
 from ilcnc.logs import AxisLog
 from ilcnc.machine_errors import ErrorSources
@@ -225,7 +225,8 @@ def simulate_program(
     timings["contour"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     acc = FeedStats()
-    feed = acc.add(on_target, classes, err.dist_mm)
+    above = air_above_mm(target, rule, classes, resolution_mm=profile.machine.resolution_mm)
+    feed = acc.add(on_target, classes, err.dist_mm, foot_z_mm=err.foot_mm[:, 2], above_mm=above)
     stats, worst = acc.result()
     timings["stats"] = time.perf_counter() - t0
     worst_at = None
@@ -272,11 +273,18 @@ class FeedStats:
         self.acc = np.array([[0.0, -1.0, -math.inf, 0.0, 0.0, 0.0, 0.0]] * 2)
 
     def add(self, move: NDArray[np.int32], classes: NDArray[Any], dist: NDArray[np.float64],
-            first_sample: int = 0) -> NDArray[np.bool_]:
+            first_sample: int = 0, *, foot_z_mm: NDArray[np.float64] | None = None,
+            above_mm: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
         """Add one stretch (its first sample is ``first_sample`` of the run); returns its feed mask (cutting
-        and air samples)."""
+        and air samples). With ``foot_z_mm`` (per sample, the Z of its nearest point on the drawing) and
+        ``above_mm`` (per move, :func:`ilcnc.air.air_above_mm`), a cutting move's sample above the stock top
+        counts with the air moves."""
         feed = np.empty(move.shape[0], dtype=np.bool_)
-        _feed_values(move, _as_classes(classes), dist, feed, self.acc, int(first_sample))
+        if foot_z_mm is None or above_mm is None:
+            fz, ab, use = np.zeros(1), np.full(1, np.inf), False
+        else:
+            fz, ab, use = np.ascontiguousarray(foot_z_mm, dtype=np.float64), np.ascontiguousarray(above_mm), True
+        _feed_values(move, _as_classes(classes), dist, feed, self.acc, int(first_sample), fz, ab, use)
         return feed
 
     @property
@@ -308,13 +316,16 @@ class FeedStats:
 
 
 @njit(cache=True, nogil=True)
-def _feed_values(move, cls, dist, feed, acc, offset):  # pragma: no cover - compiled
+def _feed_values(move, cls, dist, feed, acc, offset, foot_z, above, use_z):  # pragma: no cover - compiled
     """``feed = move >= 0 & cls[move] != 0``, and over the finite ``dist`` where feed, per class (row 0: cutting,
-    1: air): how many, the first sample of the largest (+ ``offset``), the largest, the sum and the sum of
-    squares (Neumaier-compensated sums), carried on in ``acc``."""
+    1: air; with ``use_z`` a cutting sample whose ``foot_z`` is above its move's ``above`` is air): how many,
+    the first sample of the largest (+ ``offset``), the largest, the sum and the sum of squares
+    (Neumaier-compensated sums), carried on in ``acc``."""
     for k in range(move.shape[0]):
         mv = move[k]
         c = cls[mv] if mv >= 0 else 0
+        if use_z and c == 1 and foot_z[k] > above[mv]:
+            c = 2
         f = c != 0
         feed[k] = f
         x = dist[k]

@@ -138,7 +138,7 @@ def simulate_streamed(
     ValueError
         The profile cannot run chunk by chunk (:func:`stream_unsupported`).
     """
-    from ilcnc.air import profile_move_classes
+    from ilcnc.air import air_above_mm, profile_move_classes
     from ilcnc.contour import PathGeometry, contour_error
     from ilcnc.drives import DriveStream
     from ilcnc.simulate import FeedStats, _check_against, _check_travel, against_slack_mm, moves_on_target
@@ -156,6 +156,7 @@ def simulate_streamed(
     # the cut (its E(k) counts for no command: command_error.PathWeightedSums)
     path = PathGeometry.from_moves(target.moves, include_rapids=True)
     rule, classes = profile_move_classes(target, profile)
+    above = air_above_mm(target, rule, classes, resolution_mm=profile.machine.resolution_mm)
     slack: Any = profile.planner.corner_tolerance_mm
     if against is not None:
         slack = slack + against_slack_mm(program, target, move_map)
@@ -183,7 +184,8 @@ def simulate_streamed(
         err = contour_error(path, act, on_target, reference_mm=ch.pos_mm, reference_slack_mm=slack)
         t2 = time.perf_counter()
         before = feed_stats.worst_sample
-        feed = feed_stats.add(on_target, classes, err.dist_mm, ch.first_sample)
+        feed = feed_stats.add(on_target, classes, err.dist_mm, ch.first_sample, foot_z_mm=err.foot_mm[:, 2],
+                              above_mm=above)
         if feed_stats.worst_sample != before:
             j = feed_stats.worst_sample - ch.first_sample
             seg = int(err.seg[j]) if err.seg[j] >= 0 else int(on_target[j])
