@@ -285,14 +285,24 @@ def test_cam_program_learned_five_iterations_cuts_rms_by_70_percent(jsdc_run) ->
     assert set(changed) <= set(prog.command_line.tolist())  # only G01 command lines
 
 
-def test_seed004_gamma_half_with_q_filter_converges_monotonically_within_seven() -> None:
+def test_seed004_gamma_half_with_q_filter_converges_monotonically_until_the_guard_stops_it() -> None:
+    # Γ 0.5 with the Q-filter: the cutting RMS falls at every kept update. Since the part of a plunge above the
+    # stock counts with the air moves (ilcnc.air), jsdc's cutting maximum (10.99 µm after one update) sits at
+    # a corner between long moves that no existing end point shapes (what --refine is for): the second
+    # update lowers the RMS 3.06 -> 1.65 µm but raises that maximum to 11.20 µm (+1.9 %, beyond the guard's
+    # 0.5 % + 0.05 µm at this profile's 0.1 µm resolution), so the guard refuses it, halves the gain, and
+    # stops at the second growth. Before, the maximum (11.75 µm) sat above the stock in a plunge and hid this.
     prof = _profile("seed004-ward-sopdt.yaml", q_filter_hz=20.0, iterations=7)
     res = learn_virtual(read_program(JSDC), prof)
     rms = [r.stats["rms"] for r in res.iterations]
-    assert all(r.kept for r in res.iterations), rms
-    assert res.status in ("max_iterations", "stopped", "converged") and len(rms) <= 8
-    assert all(b < a for a, b in pairwise(rms[:7])), rms  # decreasing over the first 6 updates
-    assert rms[-1] < 0.2 * rms[0]
+    kept = [r for r in res.iterations if r.kept]
+    assert all(b.stats["rms"] < a.stats["rms"] for a, b in pairwise(kept)), rms
+    assert all(b < a for a, b in pairwise(rms[:3])), rms  # the law itself: the RMS halves at each of two updates
+    for i, r in enumerate(res.iterations):
+        if not r.kept:  # refused only for a maximum that grew
+            best_max = min(x.stats["max"] for x in res.iterations[:i] if x.kept)
+            assert r.stats["max"] > best_max and r.stats["rms"] < res.iterations[0].stats["rms"], (i, r.stats)
+    assert res.best_record.stats["rms"] < 0.45 * rms[0]
 
 
 def test_too_large_gain_is_caught_by_the_guard() -> None:
