@@ -708,8 +708,8 @@ SPECS: tuple[Spec, ...] = (
        " refined. Absent: twice the machine's resolution (below it the error is at the physical floor).", "mm", 0, 10,
        default=None, default_doc="2 × machine.resolution_mm"),
     _c("learning.refine.arcs", "Also refine the straight feeds next to arcs (their end points are an arc's only"
-       " handles). Off by default: on Gates_combined_R12 (0.5 mm fillets) it inserted 27,478 lines and the"
-       " corrections near the arcs cost +21 % cycle time for -39 % RMS (docs/learning.md).", ("off", "on"),
+       " handles). Off by default: on Gates_combined_R12 (0.5 mm fillets) it inserted 28,282 lines and the"
+       " corrections near the arcs cost +14.6 % cycle time for -33 % RMS (docs/learning.md).", ("off", "on"),
        default="off"),
     _f("learning.refine.min_spacing_periods", "Least distance of an inserted point from another end point, in servo"
        " periods of motion at the move's feed (a controller runs at most one block per period).", "", 1, 1000,
