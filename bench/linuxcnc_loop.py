@@ -45,12 +45,17 @@ TARGET_DIFFERENCE = 0.2
 
 
 def linuxcnc_ready(src: Path, dest: Path) -> Path:
-    """A copy of ``src`` LinuxCNC runs: grbl ``$``-lines and ``G10 L20`` commented out, ``M2`` at the end."""
+    """A copy of ``src`` LinuxCNC runs: grbl ``$``-lines, ``G10 L20`` and a closing ``%`` without an opening one
+    commented out, ``M2`` at the end."""
     lines = src.read_text(encoding="latin-1").splitlines()
+    first = next((ln.strip() for ln in lines if ln.strip()), "")
     out = []
     for line in lines:
         s = line.strip()
-        if s.startswith("$"):
+        if s == "%" and first != "%":
+            # a closing '%' without an opening one (compass.ngc): LinuxCNC refuses it ("Bad character '%'")
+            out.append("(ilcnc bench: a closing % without an opening % removed for LinuxCNC)")
+        elif s.startswith("$"):
             out.append(f"(ilcnc bench: grbl line {s!r} removed for LinuxCNC)")
         elif s.upper().startswith("G10 L20"):
             out.append(f"(ilcnc bench: {s!r} removed: the log is in machine coordinates)")
