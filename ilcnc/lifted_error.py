@@ -61,7 +61,7 @@ from numpy.typing import NDArray
 
 from ilcnc.program.model import MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE
 
-__all__ = ["DAMPING", "lifted_error"]
+__all__ = ["DAMPING", "lifted_error", "sample_fractions"]
 
 #: Relative damping ``ρ`` of each command's correction (see the module docstring).
 DAMPING = 1e-3
@@ -77,6 +77,18 @@ TRUST_PASSES = 4
 _SETTLE_TOL = 1e-6
 #: Longest settling horizon, s.
 _SETTLE_MAX_S = 2.0
+
+
+def sample_fractions(moves: Any, sample_move: NDArray[np.integer], pos_mm: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Fraction along its move of every reference sample: the projection of ``pos_mm`` on the move's chord,
+    clipped to [0, 1] (1 on a zero-length move; a sample before the first move, -1, counts on move 0)."""
+    m = np.maximum(np.asarray(sample_move, dtype=np.int64), 0)
+    st = moves.start_mm[m]
+    d = moves.end_mm[m] - st
+    l2 = np.einsum("ij,ij->i", d, d)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lam = np.where(l2 > 0, np.einsum("ij,ij->i", pos_mm - st, d) / np.where(l2 > 0, l2, 1.0), 1.0)
+    return np.clip(lam, 0.0, 1.0)
 
 
 def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -177,14 +189,7 @@ def lifted_error(
     e = np.nan_to_num(np.asarray(err.vector_mm, dtype=np.float64))
     w[~np.isfinite(dist) | (dist > gate_mm)] = 0.0
 
-    # fraction of each sample along its move (projection on the chord, clipped)
-    m = np.maximum(mv, 0)
-    st = moves.start_mm[m]
-    d = moves.end_mm[m] - st
-    l2 = np.einsum("ij,ij->i", d, d)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        lam = np.where(l2 > 0, np.einsum("ij,ij->i", ref_mm - st, d) / np.where(l2 > 0, l2, 1.0), 1.0)
-    lam = np.clip(lam, 0.0, 1.0)
+    lam = sample_fractions(moves, mv, ref_mm)
     first = np.searchsorted(mv, np.arange(nm), side="left")
     last = np.searchsorted(mv, np.arange(nm), side="right")
     joined = np.zeros(nm, bool)
@@ -251,8 +256,8 @@ def lifted_error(
     # an end point that starts an arc may only slide along the arc's circle (the rewriter keeps the arc's centre
     # and end: ilcnc.learn.keep_arcs_valid). That slide moves the arc's points along the circle: it re-times
     # the path and shapes no error, and the hat of a straight move does not model it. Held.
-    nx_all = np.minimum(cm + 1, nm - 1)
-    arc_next = joined[cm] & (cm + 1 < nm) & ((moves.kind[nx_all] == MOVE_ARC_CW) | (moves.kind[nx_all] == MOVE_ARC_CCW))
+    nx = np.minimum(cm + 1, nm - 1)  # each command's next move (its own where it is the last)
+    arc_next = joined[cm] & (cm + 1 < nm) & ((moves.kind[nx] == MOVE_ARC_CW) | (moves.kind[nx] == MOVE_ARC_CCW))
     free = free & ~arc_next[:, None]
     energy = np.zeros((kk, 3))
     blocks: dict[tuple[int, int], Any] = {}
@@ -294,7 +299,6 @@ def lifted_error(
         # an end point slid along a smooth stretch re-times the path and shapes no error: damp it as a move
         # of its own response (ρ_t = 1); at a corner every direction shapes error
         din = moves.end_mm[cm] - moves.start_mm[cm]
-        nx = np.minimum(cm + 1, nm - 1)
         dout = np.where(joined[cm][:, None], moves.end_mm[nx] - moves.start_mm[nx], din)
         ti, to = _unit(din), _unit(dout)
         corner = np.einsum("ij,ij->i", ti, to) < np.cos(np.radians(CORNER_DEG))

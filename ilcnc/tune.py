@@ -707,17 +707,6 @@ def _settle_samples(profile: MachineProfile, period_s: float, n_max: int) -> int
     return min(out, cap)
 
 
-def _sample_fractions(moves: Any, ref: Any) -> NDArray[np.float64]:
-    """Fraction along its move of every reference sample (projection on the chord, clipped to [0, 1])."""
-    m = np.maximum(np.asarray(ref.move, dtype=np.int64), 0)
-    st = moves.start_mm[m]
-    d = moves.end_mm[m] - st
-    l2 = np.einsum("ij,ij->i", d, d)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        lam = np.where(l2 > 0, np.einsum("ij,ij->i", ref.pos_mm - st, d) / np.where(l2 > 0, l2, 1.0), 1.0)
-    return np.clip(lam, 0.0, 1.0)
-
-
 def _normal_basis(path: Any, command: NDArray[np.int64], axis: NDArray[np.int64], kind: str,
                   ) -> NDArray[np.float64]:
     """Orthonormal basis of the error directions the estimate can produce (see :class:`LiftedModel`)."""
@@ -810,6 +799,7 @@ def lifted_model(program: Any, profile: MachineProfile, *, commands: tuple[int, 
     from ilcnc.contour import ContourError, contour_error
     from ilcnc.drives import discrete_model, filter_deviation, simulate_drives
     from ilcnc.learn import Learner
+    from ilcnc.lifted_error import sample_fractions
     from ilcnc.simulate import simulate_program
 
     t0 = time.perf_counter()
@@ -852,7 +842,7 @@ def lifted_model(program: Any, profile: MachineProfile, *, commands: tuple[int, 
     cm = program.command_moves
     ns = ref.n_samples
     mvs = np.asarray(ref.move, dtype=np.int64)
-    lam = _sample_fractions(moves, ref)
+    lam = sample_fractions(moves, ref.move, ref.pos_mm)
     mv_idx = np.arange(nm)
     first = np.searchsorted(mvs, mv_idx, side="left")
     last = np.searchsorted(mvs, mv_idx, side="right")
