@@ -8,6 +8,7 @@ cycle time change, without and with ``--refine`` (the same run, so the ratios co
     python bench/refine.py [PROG ...]          # default: the four programs of the issue
     python bench/refine.py --arcs [PROG ...]   # refine with learning.refine.arcs: on (a profile copy)
     python bench/refine.py --gamma 1 [PROG ...]  # refine with learning.gains.gamma: 1 (a profile copy)
+    python bench/refine.py --feed [PROG ...]   # refine with learning.refine.feed: on (a profile copy)
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ def _ilcnc(*args: object) -> dict:
 
 def main(argv: list[str]) -> None:
     arcs = "--arcs" in argv
-    argv = [a for a in argv if a != "--arcs"]
+    feed = "--feed" in argv
+    argv = [a for a in argv if a not in ("--arcs", "--feed")]
     gamma = None
     if "--gamma" in argv:
         i = argv.index("--gamma")
@@ -44,12 +46,15 @@ def main(argv: list[str]) -> None:
     print(f"{'program':28s} {'mode':8s} {'max um':>16s} {'max':>6s} {'RMS um':>14s} {'RMS':>6s} {'cycle':>7s} {'lines+':>6s}")
     with tempfile.TemporaryDirectory() as tmp:
         profile = PROFILE
-        if arcs or gamma is not None:
+        variant = arcs or feed or gamma is not None
+        if variant:
             import yaml
 
             data = yaml.safe_load(PROFILE.read_text())
             if arcs:
                 data["learning"].setdefault("refine", {})["arcs"] = "on"
+            if feed:
+                data["learning"].setdefault("refine", {})["feed"] = "on"
             if gamma is not None:
                 data["learning"]["gains"] = {"gamma": gamma}
             profile = Path(tmp) / "example-mill-variant.yaml"
@@ -57,7 +62,7 @@ def main(argv: list[str]) -> None:
         for prog in programs:
             base = _ilcnc("simulate", prog, "--profile", profile)
             b = base["contour_error_mm"]
-            for mode in (("refine",) if arcs or gamma is not None else ("plain", "refine")):
+            for mode in (("refine",) if variant else ("plain", "refine")):
                 out = Path(tmp) / f"{mode}-{prog.stem}{prog.suffix}"
                 extra = ["--refine"] if mode == "refine" else []
                 run = _ilcnc("learn", prog, "--profile", profile, "--out", out, "--iterations", 5, *extra)
@@ -65,11 +70,13 @@ def main(argv: list[str]) -> None:
                 a = judged["contour_error_mm"]
                 inserted = (run.get("refined") or {}).get("inserted_lines", 0)
                 floor = " (at the floor)" if a["max"] * 1e3 <= 2 * resolution_um else ""
-                label = ("arcs " if arcs else "") + (f"g={gamma:g}" if gamma is not None else "") or mode
+                label = ("arcs " if arcs else "") + ("feed " if feed else "") + (
+                    f"g={gamma:g}" if gamma is not None else "") or mode
+                slowed = len((run.get("feed") or {}).get("slowed_moves", []))
                 print(f"{prog.name[:28]:28s} {label:8s} {b['max'] * 1e3:7.2f} -> {a['max'] * 1e3:6.2f}"
                       f" {a['max'] / b['max'] - 1:+6.0%} {b['rms'] * 1e3:6.2f} -> {a['rms'] * 1e3:5.2f}"
                       f" {a['rms'] / b['rms'] - 1:+6.0%} {judged['cycle_time_s'] / base['cycle_time_s'] - 1:+7.2%}"
-                      f" {inserted:6d}{floor}", flush=True)
+                      f" {inserted:6d}{floor}" + (f" slowed {slowed}" if feed else ""), flush=True)
 
 
 if __name__ == "__main__":

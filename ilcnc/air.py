@@ -40,7 +40,7 @@ from ilcnc.profile import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
 
 __all__ = ["MOVE_AIR", "MOVE_CUT", "MOVE_NOT_FED", "CuttingRule", "air_above_mm", "air_command_mask", "air_commands",
-           "cutting_rule", "move_classes", "profile_cutting_rule", "profile_move_classes"]
+           "cutting_rule", "cutting_samples", "move_classes", "profile_cutting_rule", "profile_move_classes"]
 
 #: Move classes (:func:`move_classes`): a rapid (no figure), a cutting feed move, a feed move in the air.
 MOVE_NOT_FED = 0
@@ -131,6 +131,17 @@ def air_above_mm(program: Program, rule: CuttingRule, classes: NDArray[np.int8],
         cut = classes == MOVE_CUT
         out[cut] = rule.top_z_mm + mv.offset_mm[cut, 2] + resolution_mm
     return out
+
+
+def cutting_samples(move: NDArray[np.integer], classes: NDArray[np.int8], foot_z_mm: NDArray[np.float64],
+                    above_mm: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Per sample: on a cutting move (``move``, -1: none) and not above the stock top (its nearest point on the
+    drawing, ``foot_z_mm``, at most the move's ``above_mm``); the rule of the figures, in numpy."""
+    mv = np.asarray(move)
+    ok = mv >= 0
+    m = np.where(ok, mv, 0)
+    z = np.nan_to_num(np.asarray(foot_z_mm, dtype=np.float64), nan=np.inf)
+    return ok & (classes[m] == MOVE_CUT) & (z <= above_mm[m])
 
 
 def air_commands(program: Program, classes: NDArray[np.int8]) -> NDArray[np.bool_]:

@@ -38,8 +38,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc.air import CuttingRule, air_command_mask, profile_cutting_rule, profile_move_classes
+from ilcnc.air import (
+    MOVE_CUT,
+    CuttingRule,
+    air_above_mm,
+    air_command_mask,
+    cutting_samples,
+    profile_cutting_rule,
+    profile_move_classes,
+)
 from ilcnc.command_error import CommandSignal, error_kind, measurement_gate_mm, signal_of_simulation
+from ilcnc.feed import FeedLaw, FeedOutcome, move_errors_mm, move_times_s
 from ilcnc.laws import AXES, LearningLaw, cut_runs, make_law
 from ilcnc.profile import MachineProfile
 from ilcnc.program.model import (
@@ -377,6 +386,8 @@ class IterationRecord:
         The air moves' ``max`` / ``mean`` / ``rms``, mm (reported apart, never judged).
     cycle_time_s : float or None
         Cycle time of this iteration's program, s (a part is judged by its error without longer machining).
+    feed_scale : ndarray (M,) or None
+        Feed factor of every move of this iteration's program (``learning.refine.feed``; None: as programmed).
     """
 
     iteration: int
@@ -392,6 +403,7 @@ class IterationRecord:
     shares: dict[str, dict[str, float]] = field(default_factory=dict)
     air_stats: dict[str, float] | None = None
     cycle_time_s: float | None = None
+    feed_scale: NDArray[np.float64] | None = None
 
     def to_json(self) -> dict[str, Any]:
         out = {"iteration": self.iteration, "contour_error_mm": {k: self.stats[k] for k in ("max", "mean", "rms")},
@@ -402,6 +414,8 @@ class IterationRecord:
             out["cycle_time_s"] = self.cycle_time_s
         if self.shares:
             out["error_shares_mm"] = self.shares
+        if self.feed_scale is not None:
+            out["slowed_moves"] = int(np.count_nonzero(self.feed_scale < 1.0))
         return out
 
 
@@ -427,6 +441,8 @@ class LearnResult:
         Commands in the air kept as programmed (``learning.air_moves: keep``).
     cutting : CuttingRule or None
         The rule that told cutting from air moves (:mod:`ilcnc.air`).
+    feed : FeedOutcome or None
+        What the feed learning did (``learning.refine.feed: on``; :mod:`ilcnc.feed`).
     """
 
     program: Program
@@ -437,6 +453,7 @@ class LearnResult:
     frozen: int = 0
     air_commands: int = 0
     cutting: CuttingRule | None = None
+    feed: FeedOutcome | None = None
 
     @property
     def best_record(self) -> IterationRecord:
@@ -464,6 +481,7 @@ class LearnResult:
             "frozen_commands": self.frozen,
             "air_commands": self.air_commands,
             "cutting_rule": None if self.cutting is None else self.cutting.to_json(),
+            "feed": None if self.feed is None else self.feed.to_json(),
         }
 
 
@@ -670,13 +688,22 @@ def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], mea
 
 
 def program_with_corrections(
-    program: Program, corrections_mm: NDArray[np.float64], profile: MachineProfile
+    program: Program, corrections_mm: NDArray[np.float64], profile: MachineProfile, *,
+    feed_scale: NDArray[np.float64] | None = None,
 ) -> tuple[str, Program]:
-    """Rewrite the program with corrections and read the result back (what the machine will run)."""
+    """Rewrite the program with corrections (and, with ``feed_scale`` (M,), each move's feed times its factor:
+    ``learning.refine.feed``) and read the result back (what the machine will run)."""
     from ilcnc.program import read_program
     from ilcnc.program.rewrite import apply_corrections
 
-    text, _edits = apply_corrections(program, corrections_mm, min_decimals=profile.min_decimals(program.units))
+    extra = None
+    if feed_scale is not None and np.any(feed_scale != 1.0):
+        from ilcnc.program.feedwords import feed_edits
+
+        mv = program.moves
+        extra = feed_edits(program, np.where(feed_scale != 1.0, mv.feed_mm_min * feed_scale, np.nan))
+    text, _edits = apply_corrections(program, corrections_mm, min_decimals=profile.min_decimals(program.units),
+                                     extra_edits=extra)
     prog = read_program(program.path, default_units=program.units, data=text.encode("latin-1"))
     return text, prog
 
@@ -695,6 +722,7 @@ def learn_virtual(
     progress: Callable[[int, int, str], None] | None = None,
     on_record: Callable[[IterationRecord], None] | None = None,
     error: str | None = None,
+    initial_feed_scale: NDArray[np.float64] | None = None,
 ) -> LearnResult:
     """Learn corrections for a program on the virtual CNC of a profile.
 
@@ -731,6 +759,9 @@ def learn_virtual(
         killed later keeps every finished iteration).
     error : str, optional
         The error estimate (default: the profile's, :func:`ilcnc.command_error.error_kind`).
+    initial_feed_scale : ndarray (M,), optional
+        Continue a run with ``learning.refine.feed: on``: the feed factor of every move of the program it
+        continues (1: as programmed).
 
     Returns
     -------
@@ -752,7 +783,14 @@ def learn_virtual(
     sources = ErrorSources.from_profile(profile)  # map, FRF and stock files read once for all runs
 
     # a run that keeps only its figures goes chunk by chunk (bounded memory, the same numbers: ilcnc.stream)
-    streamed = not keep_runs and stream_unsupported(profile, kind, sources=sources) is None
+    feed_on = profile.learning.refine.feed == "on"
+    # per-move figures for the feed learning need the whole run
+    streamed = not keep_runs and not feed_on and stream_unsupported(profile, kind, sources=sources) is None
+    n_moves = len(program.moves)
+    last_feed: dict[str, Any] = {}  # the last run's per-move errors and times (feed learning)
+    if feed_on:
+        rule_f, classes_f = profile_move_classes(program, profile)
+        above_f = air_above_mm(program, rule_f, classes_f, resolution_mm=profile.machine.resolution_mm)
 
     free_coords = learner.free_coordinates()
 
@@ -768,6 +806,11 @@ def learn_virtual(
             return st, st.signal, timings
         sim = simulate_program(prog, profile, against=None if prog is program else program, sources=sources)
         t1 = time.perf_counter()
+        if feed_on:
+            ref_move = sim.reference.move
+            cut = cutting_samples(ref_move, classes_f, sim.error.foot_mm[:, 2], above_f)
+            last_feed["err"] = move_errors_mm(sim.error.dist_mm, cut, sim.error.seg, ref_move, n_moves)
+            last_feed["time"] = move_times_s(ref_move, sim.period_s, n_moves)
         sig = signal_of_simulation(sim, program, kind, measurement_gate_mm(profile), profile=profile,
                                    free=free_coords)
         timings = dict(sim.timings_s)
@@ -777,20 +820,27 @@ def learn_virtual(
 
     k = program.n_commands
     u0 = np.zeros((k, 3)) if initial_corrections_mm is None else np.asarray(initial_corrections_mm, dtype=np.float64)
-    if np.any(u0):
-        text0, prog0 = program_with_corrections(program, u0, profile)
+    f0 = None
+    if feed_on:
+        f0 = np.ones(n_moves) if initial_feed_scale is None else np.asarray(initial_feed_scale, dtype=np.float64)
+    if np.any(u0) or (f0 is not None and np.any(f0 != 1.0)):
+        text0, prog0 = program_with_corrections(program, u0, profile, feed_scale=f0)
     else:
         text0, prog0 = program.text, program
     sim0, sig0, tim0 = run(prog0, 0)
     records = [IterationRecord(first_iteration, dict(sim0.stats), u0, sig0, [], True, 1.0, text0,
                                sim0 if keep_runs else None, tim0, dict(sim0.shares), dict(sim0.air_stats),
-                               float(sim0.cycle_time_s))]
+                               float(sim0.cycle_time_s), f0)]
+    feed_law = _feed_law(program, profile, last_feed, f0, float(sim0.cycle_time_s)) if f0 is not None else None
+    feed_err0 = last_feed.get("err")
     if on_record:
         on_record(records[0])
     stats0 = records[0].stats
     del sim0  # one run held at a time: a large program's run is several GB
     u_hist = [u0]
     s_hist = [sig0]
+    feed_best: dict[str, Any] = {"err": feed_err0}  # per-move errors of the best kept run (feed learning)
+    stall_msg: str | None = None
     best = 0
     scale = 1.0
     halved = False
@@ -803,32 +853,69 @@ def learn_virtual(
         return LearnResult(program, records, "stopped", "the program has no G01 command to correct", 0, frozen, n_air,
                            rule)
     it = 0
+    # learning.refine.feed: when the geometry stalls (or its step is refused twice), the next step lowers the
+    # feed where the error is left (the geometry held), then the geometry learns on at the new feeds
+    feed_step = False
+    feed_done = feed_law is None
     while it < n_iter:
         it += 1
         if progress:
             progress(it, n_iter, "learn")
         t0 = time.perf_counter()
-        u_new, clips = learner.propose(u_hist[-learner.law.memory:], s_hist[-learner.law.memory:], scale=scale)
+        best_rec_now = records[best]
+        f_best = best_rec_now.feed_scale
+        cycle_best = float(best_rec_now.cycle_time_s or 0.0)
+        if feed_step:
+            assert feed_law is not None and f_best is not None and feed_best["err"] is not None
+            u_new, clips = u_hist[-1], []
+            f_new, _level = feed_law.propose(f_best, feed_best["err"], cycle_best)
+            if np.array_equal(f_new, f_best):
+                it -= 1
+                feed_done = True
+                feed_step = False
+                if stall_msg is not None:
+                    status, message = "stopped", stall_msg + "; no feed left to lower within the budget"
+                    break
+                continue
+        else:
+            u_new, clips = learner.propose(u_hist[-learner.law.memory:], s_hist[-learner.law.memory:], scale=scale)
+            f_new = f_best
         t_law = time.perf_counter() - t0
         t0 = time.perf_counter()
-        text, prog = program_with_corrections(program, u_new, profile)
+        text, prog = program_with_corrections(program, u_new, profile, feed_scale=f_new)
         t_write = time.perf_counter() - t0
         sim, sig, tim = run(prog, it)
         tim["law"] = t_law
         tim["write"] = t_write
         stats = dict(sim.stats)
+        cycle = float(sim.cycle_time_s)
         ref_stats = best_stats([r.stats for r in records if r.kept])
         worse = grew(stats, ref_stats, resolution_mm=profile.machine.resolution_mm) if guard else []
+        if feed_step:
+            assert feed_law is not None and f_new is not None and f_best is not None
+            feed_law.measured(f_new, cycle, cycle_best, f_best)
+            if guard and cycle > feed_law.cycle0_s + feed_law.budget_s:
+                worse.append("cycle")
+            if guard and not worse and stats["max"] >= ref_stats["max"]:
+                worse.append("max")  # a feed step is taken for the max: one that does not lower it costs time
         rec = IterationRecord(first_iteration + it, stats, u_new, sig, clips, not worse, scale, text,
                               sim if keep_runs else None, tim, dict(sim.shares), dict(sim.air_stats),
-                              float(sim.cycle_time_s))
+                              cycle, f_new)
         del sim, prog  # one run held at a time: a large program's run is several GB
         records.append(rec)
         if on_record:
             on_record(rec)
         if worse:
-            what = " and ".join(f"{w.upper()} {ref_stats[w] * 1e3:.2f} → {stats[w] * 1e3:.2f} µm" for w in worse)
+            what = " and ".join(_grown(w, ref_stats, stats, rec, feed_law) for w in worse)
+            if feed_step:  # the feed learning ends; the geometry's outcome stands
+                feed_step, feed_done = False, True
+                status = "stopped"
+                message = f"the feed step of iteration {rec.iteration} did not lower the error ({what}): stopped"
+                break
             if halved:
+                if not feed_done:
+                    feed_step, stall_msg = True, None
+                    continue
                 status = "diverged"
                 message = f"iteration {rec.iteration} made the error worse again ({what}) with the gain halved: stopped"
                 break
@@ -837,6 +924,7 @@ def learn_virtual(
             continue
         prev_rms = records[best].stats["rms"]
         best = len(records) - 1
+        feed_best["err"] = last_feed.get("err")
         u_hist.append(u_new)
         s_hist.append(sig)
         if stats["max"] <= profile.learning.stop_tolerance_mm:
@@ -844,20 +932,96 @@ def learn_virtual(
             message = (f"max contour error {stats['max'] * 1e3:.3f} µm is within the stop tolerance "
                        f"{profile.learning.stop_tolerance_mm * 1e3:g} µm after iteration {rec.iteration}")
             break
+        if feed_step:  # kept: the geometry learns on at the new feeds
+            feed_step, halved = False, False
+            continue
         if stop_on_stall and prev_rms - stats["rms"] < STALL_REL * prev_rms:
+            stall_msg = (f"iteration {rec.iteration} improved the RMS contour error by less than {STALL_REL:.0%} "
+                         f"({prev_rms * 1e3:.3f} → {stats['rms'] * 1e3:.3f} µm)")
+            if not feed_done:
+                feed_step = True
+                continue
             status = "stopped"
-            message = (f"iteration {rec.iteration} improved the RMS contour error by less than {STALL_REL:.0%} "
-                       f"({prev_rms * 1e3:.3f} → {stats['rms'] * 1e3:.3f} µm): stopped")
+            message = stall_msg + ": stopped"
             break
     # the output: the kept iteration with the lowest RMS error (a kept iteration may be a hair
     # worse than the one before, within the resolution); unguarded runs keep every iteration
     kept_idx = [i for i, r in enumerate(records) if r.kept]
-    best = min(kept_idx, key=lambda i: (records[i].stats["rms"], -i))
+    if feed_law is not None:  # feed steps are taken for the max
+        best = min(kept_idx, key=lambda i: (records[i].stats["max"], records[i].stats["rms"], -i))
+    else:
+        best = min(kept_idx, key=lambda i: (records[i].stats["rms"], -i))
     if status == "max_iterations":
         message = f"ran {n_iter} iterations"
     if status in ("max_iterations", "diverged"):
         message += f"; the output is iteration {records[best].iteration}"
-    return LearnResult(program, records, status, message, best, frozen, n_air, rule)
+    feed_out = None
+    if feed_law is not None:
+        feed_out = _feed_outcome(program, profile, feed_law, records[best], records[0], feed_err0)
+    return LearnResult(program, records, status, message, best, frozen, n_air, rule, feed_out)
+
+
+def _grown(what: str, ref: dict[str, float], new: dict[str, float], rec: IterationRecord,
+           feed_law: FeedLaw | None) -> str:
+    """One grown figure for the guard's message."""
+    if what == "cycle":
+        assert feed_law is not None and rec.cycle_time_s is not None
+        limit = feed_law.cycle0_s + feed_law.budget_s
+        return f"cycle time {rec.cycle_time_s:.2f} s over the feed budget's {limit:.2f} s"
+    return f"{what.upper()} {ref[what] * 1e3:.2f} → {new[what] * 1e3:.2f} µm"
+
+
+def _feed_law(program: Program, profile: MachineProfile, last: dict[str, Any], scale0: NDArray[np.float64],
+              cycle_s: float) -> FeedLaw:
+    """The feed law of a run from its first run (:mod:`ilcnc.feed`)."""
+    from ilcnc.program.feedwords import feed_moves
+    from ilcnc.program.geometry import move_lengths_mm
+
+    sec = profile.learning.refine
+    mv = program.moves
+    ok, _refused = feed_moves(program)
+    _rule, classes = profile_move_classes(program, profile)
+    length = move_lengths_mm(mv)  # an arc's along its circle (the planner's time is on the arc)
+    feed_mm_s = np.where(np.isfinite(mv.feed_mm_min), mv.feed_mm_min, 0.0) / 60.0
+    adjustable = ok & (classes == MOVE_CUT) & (length > 0) & (feed_mm_s > 0)
+    time0 = np.asarray(last["time"], dtype=np.float64).copy()
+    slowed = scale0 < 1.0
+    # a continued run: what its slowed moves took at the programmed feed is not measured; the ideal time stands in
+    time0[slowed] = length[slowed] / np.maximum(feed_mm_s[slowed], 1e-12)
+    law = FeedLaw(adjustable, length, feed_mm_s, time0, 0.0, 0.0, sec.feed_min_ratio,
+                  max(2.0 * profile.machine.resolution_mm, profile.learning.stop_tolerance_mm))
+    cycle0 = cycle_s - law.cost_s(scale0)
+    law.cycle0_s = cycle0
+    law.budget_s = sec.feed_budget_pct / 100.0 * cycle0
+    return law
+
+
+def _feed_outcome(program: Program, profile: MachineProfile, law: FeedLaw, best: IterationRecord,
+                  first: IterationRecord, err0: NDArray[np.float64] | None) -> FeedOutcome:
+    from ilcnc.program.feedwords import feed_moves
+
+    mv = program.moves
+    scale = best.feed_scale if best.feed_scale is not None else np.ones(len(mv))
+    out_prog_feed = None
+    if np.any(scale < 1.0):  # the feeds as written (rounded to the feed word's decimals): read back
+        _text, prog = program_with_corrections(program, best.corrections_mm, profile, feed_scale=scale)
+        out_prog_feed = prog.moves.feed_mm_min
+    slowed = []
+    for i in np.flatnonzero(scale < 1.0):
+        i = int(i)
+        written = float(out_prog_feed[i]) if out_prog_feed is not None else float(mv.feed_mm_min[i] * scale[i])
+        slowed.append({"move": i, "line": int(mv.line[i]), "k": int(mv.command[i]),
+                       "kind": "line" if mv.kind[i] == 1 else "arc",
+                       "feed_mm_min": [float(mv.feed_mm_min[i]), written],
+                       "error_mm": float(err0[i]) if err0 is not None else float("nan")})
+    _ok, refused = feed_moves(program)
+    _rule, classes = profile_move_classes(program, profile)
+    reasons: dict[str, int] = {}
+    for i, why in refused:
+        if classes[i] == MOVE_CUT:
+            reasons[why] = reasons.get(why, 0) + 1
+    return FeedOutcome(slowed, profile.learning.refine.feed_budget_pct,
+                       (float(first.cycle_time_s or 0.0), float(best.cycle_time_s or 0.0)), reasons, law.kappa)
 
 
 

@@ -711,6 +711,14 @@ SPECS: tuple[Spec, ...] = (
        " handles). Off by default: on Gates_combined_R12 (0.5 mm fillets) it inserted 28,282 lines and the"
        " corrections near the arcs cost +14.6 % cycle time for -33 % RMS (docs/learning.md).", ("off", "on"),
        default="off"),
+    _c("learning.refine.feed", "Let the learning lower F on the moves where the geometry cannot be shaped (arcs,"
+       " corners the planner runs at its tolerance), the largest errors first, within feed_budget_pct of cycle time;"
+       " every slowed move is reported (docs/learning.md). Off by default; with or without refinement.",
+       ("off", "on"), default="off"),
+    _f("learning.refine.feed_budget_pct", "Most extra cycle time the feed learning may spend, % of the original"
+       " program's cycle time (an iteration whose cycle time leaves it is refused).", "%", 0, 50, default=2.0),
+    _f("learning.refine.feed_min_ratio", "Least feed the feed learning may program, as a fraction of the programmed"
+       " feed.", "", 0.05, 1, default=0.25),
     _f("learning.refine.min_spacing_periods", "Least distance of an inserted point from another end point, in servo"
        " periods of motion at the move's feed (a controller runs at most one block per period).", "", 1, 1000,
        default=3.0),
@@ -1263,6 +1271,12 @@ class RefineSection:
         Least spacing of end points, in servo periods of motion at the feed.
     arcs : str
         ``"on"``: also refine the straight feeds next to arcs.
+    feed : str
+        ``"on"``: the learning may lower F where the geometry cannot be shaped (:mod:`ilcnc.feed`).
+    feed_budget_pct : float
+        Most extra cycle time for it, % of the original's.
+    feed_min_ratio : float
+        Least feed it may program, fraction of the programmed feed.
     """
 
     enabled: str = _default("learning.refine.enabled")
@@ -1272,6 +1286,9 @@ class RefineSection:
     min_error_mm: float | None = _default("learning.refine.min_error_mm")
     min_spacing_periods: float = _default("learning.refine.min_spacing_periods")
     arcs: str = _default("learning.refine.arcs")
+    feed: str = _default("learning.refine.feed")
+    feed_budget_pct: float = _default("learning.refine.feed_budget_pct")
+    feed_min_ratio: float = _default("learning.refine.feed_min_ratio")
 
     def to_dict(self) -> dict[str, Any]:
         out = {k: v for k, v in vars(self).items() if v is not None}

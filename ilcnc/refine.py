@@ -276,6 +276,10 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
         if peak < plan.threshold_mm:
             plan.passed["below threshold"] = plan.passed.get("below threshold", 0) + 1
             continue
+        if kind == "corner" and cfg.feed == "on":
+            # the feed learning slows a corner by its pieces: both sides need a piece as long as the stretch the
+            # corner disturbs (the error shows on one side, the lag that makes it runs over both)
+            st_i = st_j = max(st_i, st_j)
         n = 0
         if kind == "corner":
             near_i, room_i = spacing(i), MAX_MOVE_SHARE * length[i]

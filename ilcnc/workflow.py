@@ -166,6 +166,7 @@ class LearnOutcome:
     cutting_rule: str = ""
     cutting: dict[str, Any] | None = None
     refined: dict[str, Any] | None = None
+    feed: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -182,6 +183,7 @@ class LearnOutcome:
             "air_commands": self.air_commands,
             "cutting_rule": self.cutting,
             "refined": self.refined,
+            "feed": self.feed,
             "notes": self.notes,
         }
 
@@ -374,9 +376,14 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
         u0, first = None, 0
     learning = _learning_program(state, original, profile)
     writer = _record_writer(state, learning)
+    f0 = None
+    if profile.learning.refine.feed == "on" and u0 is not None:
+        f0 = _stored_feed_scale(state, learning)
     result = learn_virtual(learning, profile, iterations=req.iterations, keep_runs=req.report is not None,
                            initial_corrections_mm=u0, first_iteration=first, progress=progress, on_record=writer,
-                           error=state.error)
+                           error=state.error, initial_feed_scale=f0)
+    if result.feed is not None:
+        notes.extend(result.feed.notes())
     best_rec = result.best_record
     out = _write_output(req, best_rec.text, original, state.part["sha256"], best_rec.iteration)
     for e in state.iterations:
@@ -390,9 +397,24 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
                            reduction_rms=result.reduction("rms"), air_commands=result.air_commands,
                            cutting_rule="" if rule is None else rule.describe(),
                            cutting=None if rule is None else rule.to_json(), refined=state.part.get("refined"))
+    outcome.feed = None if result.feed is None else result.feed.to_json()
     if req.report is not None:
         outcome.report_files = _report_virtual(req, learning, result, best_rec)
     return outcome
+
+
+def _stored_feed_scale(state: LearnState, learning: Program) -> NDArray[np.float64]:
+    """The feed factor of every move of the state's best program (``learning.refine.feed``: the feeds it wrote),
+    against the learning program's; 1 where a move runs as programmed."""
+    best = state.best()
+    assert best is not None
+    prog = read_program(learning.path, default_units=learning.units, data=state.read_program_bytes(best))
+    a, b = learning.moves.feed_mm_min, prog.moves.feed_mm_min
+    if a.shape != b.shape:
+        raise StateError(state.file(best.program), None, "damaged state file: its moves are not the learning"
+                         " program's")
+    ok = np.isfinite(a) & np.isfinite(b) & (a > 0)
+    return np.where(ok & (b < a), b / np.where(ok, a, 1.0), 1.0)
 
 
 def _refine_from_log(req: LearnRequest, profile: MachineProfile, original: Program) -> tuple[Any, Any]:
@@ -599,6 +621,9 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     worse = grew(meas.stats, ref_stats, resolution_mm=profile.machine.resolution_mm) if ref_stats else []
     entry.kept = not worse
     notes = list(meas.notes)
+    if profile.learning.refine.feed == "on":
+        notes.append("feed: learning.refine.feed lowers feeds on the virtual CNC only (learn without --log); this"
+                     " measured step changes coordinates alone")
     if refined_log is not None and state.part.get("refined"):
         notes.insert(0, f"refined from the log of the original program: {state.part['refined']['inserted_lines']}"
                         " lines inserted (docs/learning.md, Refinement)")

@@ -120,6 +120,7 @@ def apply_corrections(
     corrections_mm: NDArray[np.float64],
     *,
     min_decimals: int = 3,
+    extra_edits: list[Edit] | None = None,
 ) -> tuple[str, list[Edit]]:
     """Return the program text with ``corrections_mm`` added to the command end points.
 
@@ -132,6 +133,10 @@ def apply_corrections(
     min_decimals : int
         Least number of decimals of a rewritten number (the machine's
         resolution in program units).
+    extra_edits : list of Edit, optional
+        Other edits of the same text to make with them (e.g. the feed words of
+        :func:`ilcnc.program.feedwords.feed_edits`); they must not overlap a
+        rewritten number.
 
     Returns
     -------
@@ -157,13 +162,14 @@ def apply_corrections(
     mv = program.moves
     m = len(mv)
     if m == 0 or not np.any(corr):
+        if extra_edits:
+            return _assemble(program, list(extra_edits))
         return program.text, []
     desired = mv.end_mm.copy()
     desired[program.command_moves] += corr
     changed = np.zeros(m, dtype=bool)
     changed[program.command_moves] = np.any(corr != 0.0, axis=1)
     klartext = program.dialect == "heidenhain"
-    text = program.text
     realized = mv.end_mm.copy()
     edits: list[Edit] = []
     inserts: dict[int, list[tuple[int, str, int]]] = {}
@@ -201,6 +207,15 @@ def apply_corrections(
     for pos, items in inserts.items():
         items.sort()
         edits.append(Edit(pos, pos, "".join(s for _a, s, _l in items), items[0][2]))
+    if extra_edits:
+        edits.extend(extra_edits)
+    return _assemble(program, edits)
+
+
+def _assemble(program: Program, edits: list[Edit]) -> tuple[str, list[Edit]]:
+    """The text with ``edits`` made (sorted by position; an insertion at a position comes before a replacement
+    that starts there)."""
+    text = program.text
     edits.sort(key=lambda e: (e.start, e.end))
     out: list[str] = []
     last = 0
