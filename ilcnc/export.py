@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -10,7 +11,8 @@ import numpy as np
 from ilcnc.corrections import read_corrections
 from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes, write_atomic
-from ilcnc.program import GCODE_SUFFIXES, HEIDENHAIN_SUFFIXES, read_program
+from ilcnc.program import GCODE_SUFFIXES, HEIDENHAIN_SUFFIXES, Program, read_program
+from ilcnc.program.model import FLAG_HOME, FLAG_MACHINE
 from ilcnc.program.rewrite import apply_corrections
 
 __all__ = ["ExportResult", "export_program", "output_family"]
@@ -88,6 +90,7 @@ def export_program(
         write_atomic(out, text.encode("latin-1"), protect=protect)
         return ExportResult(out, "rewrite", int(np.count_nonzero(np.any(corr != 0, axis=1))), len(edits))
     program.require_complete()
+    _refuse_unconvertible(program, family)
     moves = program.moves
     if corr is not None and np.any(corr):
         moves = _corrected_moves(program, corr)
@@ -99,10 +102,34 @@ def export_program(
     else:
         from ilcnc.program.gcode import write_gcode
 
-        text = write_gcode(moves, units=program.units, decimals=dec, name=program.path.name)
+        try:
+            text = write_gcode(moves, units=program.units, decimals=dec, name=program.path.name)
+        except ValueError as exc:  # a construct the target cannot run: nothing is written
+            raise InputError(src, None, f"cannot be converted to {out.suffix}: {exc}") from None
     write_atomic(out, text.encode("latin-1", errors="replace"), protect=protect)
     changed = 0 if corr is None else int(np.count_nonzero(np.any(corr != 0, axis=1)))
     return ExportResult(out, "convert", changed, 0)
+
+
+def _refuse_unconvertible(program: Program, family: str) -> None:
+    """Refuse, with the line, a move the other dialect would run somewhere else (issue 20): Klartext ``M92``
+    (a position the machine builder defines; ``G53`` is machine zero), G-code ``G28``/``G30`` (a home position
+    stored in the machine, which Klartext cannot name)."""
+    mv = program.moves
+    if family == "gcode":
+        for i in np.flatnonzero(mv.flags & FLAG_MACHINE):
+            line = int(mv.line[i])
+            start = program.line_start(line)
+            end = program.text.find("\n", start)
+            body = program.text[start:end if end >= 0 else len(program.text)].split(";", 1)[0].upper()
+            if re.search(r"\bM92\b", body):
+                raise InputError(program.path, line, "M92 positions are relative to a datum the machine builder"
+                                 " sets; G-code has no equivalent (G53 is machine zero): not converted")
+    else:
+        home = np.flatnonzero(mv.flags & FLAG_HOME)
+        if home.size:
+            raise InputError(program.path, int(mv.line[home[0]]), "G28/G30 go to a position stored in the machine;"
+                             " Klartext has no equivalent (an M91 move to that position would): not converted")
 
 
 def _pgm_name(out: Path) -> str:

@@ -2726,11 +2726,14 @@ class _Writer:
             self.blocks.append(f"CYCL DEF 7.{a + 1} {_AXIS_LETTERS[a]}{self.num(off[a])}")
         self.last = [None, None, None]
 
-    def axes(self, p: np.ndarray, force: tuple[int, ...] = ()) -> str:
+    def axes(self, p: np.ndarray, force: tuple[int, ...] = (), named: list[int] | None = None) -> str:
+        """Words of the axes whose written value changes (of ``named`` alone, when given: the axes the source
+        named or the move changes, so an axis the source never positioned is not invented) and of ``force``."""
         words = []
         for a in range(3):
             txt = self.num(float(p[a]))
-            if txt != self.last[a] or a in force:
+            write = txt != self.last[a] and (named is None or a in named)
+            if write or a in force:
                 words.append(f" {_AXIS_LETTERS[a]}{txt}")
                 self.last[a] = txt
         return "".join(words)
@@ -2743,13 +2746,14 @@ class _Writer:
             self.last[a] = None
         return "".join(words)
 
-    def straight(self, kind: int, p: np.ndarray, feed: float, machine: list[int] | None, plane: int) -> None:
+    def straight(self, kind: int, p: np.ndarray, feed: float, machine: list[int] | None, plane: int,
+                 named: list[int] | None = None) -> None:
         if machine is not None:
             words = self.machine_axes(p, machine)
         else:
-            words = self.axes(p)
+            words = self.axes(p, named=named)
             if not words:
-                words = self.axes(p, force=(PLANE_AXES.get(plane, (0, 1, 2))[0],))
+                words = self.axes(p, force=(PLANE_AXES.get(plane, (0, 1, 2))[0],), named=[])
         if kind == MOVE_RAPID:
             tail = " FMAX"
         else:
@@ -2853,11 +2857,11 @@ def write_klartext(moves: MoveTable, *, name: str, units: str = "mm", decimals: 
         off = np.zeros(3) if machine else off
         plane = int(moves.plane[i])
         if kind in (MOVE_RAPID, MOVE_LINE):
-            named = None
-            if machine:
-                named = [a for a in range(3)
-                         if moves.word_start[i, a] != -1 or moves.end_mm[i, a] != moves.start_mm[i, a]]
-            w.straight(kind, end, float(moves.feed_mm_min[i]), named, plane)
+            # only the axes the source named or the move changes: an axis never positioned is not invented
+            named = [a for a in range(3)
+                     if moves.word_start[i, a] != -1 or abs(moves.end_mm[i, a] - moves.start_mm[i, a]) > 1e-9]
+            w.straight(kind, end, float(moves.feed_mm_min[i]), named if machine else None, plane,
+                       named=None if machine else named)
         else:
             w.arc(kind, moves.start_mm[i] - off, end, moves.center_mm[i] - off, plane, int(moves.turns[i]),
                   float(moves.feed_mm_min[i]))
