@@ -12,7 +12,7 @@ from ilcnc.corrections import read_corrections
 from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes, write_atomic
 from ilcnc.program import GCODE_SUFFIXES, HEIDENHAIN_SUFFIXES, Program, read_program
-from ilcnc.program.model import FLAG_HOME, FLAG_MACHINE
+from ilcnc.program.model import FLAG_CUTTER_COMP, FLAG_HOME, FLAG_MACHINE
 from ilcnc.program.rewrite import apply_corrections
 
 __all__ = ["ExportResult", "export_program", "output_family"]
@@ -95,15 +95,18 @@ def export_program(
     if corr is not None and np.any(corr):
         moves = _corrected_moves(program, corr)
     dec = _min_decimals(program.units, profile_path, min_decimals)
+    from ilcnc.program.carry import carried_events
+
+    events = carried_events(program)  # tool, spindle, coolant, dwells, stops, comments; or refused with the line
     if family == "heidenhain":
         from ilcnc.program.heidenhain import write_klartext
 
-        text = write_klartext(moves, name=_pgm_name(out), units=program.units, decimals=dec)
+        text = write_klartext(moves, name=_pgm_name(out), units=program.units, decimals=dec, events=events)
     else:
         from ilcnc.program.gcode import write_gcode
 
         try:
-            text = write_gcode(moves, units=program.units, decimals=dec, name=program.path.name)
+            text = write_gcode(moves, units=program.units, decimals=dec, name=program.path.name, events=events)
         except ValueError as exc:  # a construct the target cannot run: nothing is written
             raise InputError(src, None, f"cannot be converted to {out.suffix}: {exc}") from None
     write_atomic(out, text.encode("latin-1", errors="replace"), protect=protect)
@@ -112,10 +115,15 @@ def export_program(
 
 
 def _refuse_unconvertible(program: Program, family: str) -> None:
-    """Refuse, with the line, a move the other dialect would run somewhere else (issue 20): Klartext ``M92``
+    """Refuse, with the line, a move the other dialect would run somewhere else (issue 20): cutter radius
+    compensation (the writers write the programmed contour), Klartext ``M92``
     (a position the machine builder defines; ``G53`` is machine zero), G-code ``G28``/``G30`` (a home position
     stored in the machine, which Klartext cannot name)."""
     mv = program.moves
+    comp = np.flatnonzero(mv.flags & FLAG_CUTTER_COMP)
+    if comp.size:
+        raise InputError(program.path, int(mv.line[comp[0]]), "cutter radius compensation (G41/G42, RL/RR) is not"
+                         " converted: the contour would be cut by the tool centre")
     if family == "gcode":
         for i in np.flatnonzero(mv.flags & FLAG_MACHINE):
             line = int(mv.line[i])

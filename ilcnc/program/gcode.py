@@ -1313,7 +1313,8 @@ def _finish(p: Path, text: str, interp: _Interpreter, unsupported: tuple[int, st
                    warnings=interp.warnings, unsupported=unsupported, span_resolver=resolve_fast_spans)
 
 
-def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: str = "", dialect: str = "linuxcnc") -> str:
+def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: str = "", dialect: str = "linuxcnc",
+                events: object = None) -> str:
     """Write a move table (from any dialect) as a plain absolute G-code program.
 
     Parameters
@@ -1328,6 +1329,9 @@ def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: st
         Program name for the header comment.
     dialect : str
         ``linuxcnc`` (ends with M2), ``fanuc`` (``%`` delimited, M30) or ``grbl``.
+    events : Carried, optional
+        The source's machining words by move (:func:`ilcnc.program.carry.carried_events`), written before and
+        after their moves.
 
     A block names only the axes its source block named or the move changes: an axis the source never
     positioned is not invented (the machine stays where it is). A machine-coordinate move (``M91``, ``G53``)
@@ -1364,7 +1368,11 @@ def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: st
         s = f"{v:.{d}f}"
         return s[1:] if s.startswith("-") and float(s) == 0.0 else s
 
+    from ilcnc.program.carry import Carried, gcode_blocks
+
+    carried = events if isinstance(events, Carried) else Carried()
     for i in range(len(moves)):
+        out.extend(gcode_blocks(carried.before.get(i, []), dialect))
         kind = int(moves.kind[i])
         machine = bool(moves.flags[i] & FLAG_MACHINE)
         if not machine:
@@ -1410,6 +1418,8 @@ def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: st
                 words.append(f"F{fs}")
                 feed = fs
         out.append(" ".join(words))
+        out.extend(gcode_blocks(carried.after.get(i, []), dialect))
+    out.extend(gcode_blocks(carried.tail, dialect))
     if offset != (0.0, 0.0, 0.0):
         out.append("G52 X0 Y0 Z0")
     out.append("M30" if dialect == "fanuc" else "M2")

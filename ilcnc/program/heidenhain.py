@@ -2805,7 +2805,7 @@ def _comment_lines(comments: list[str] | None) -> list[str]:
 
 
 def write_klartext(moves: MoveTable, *, name: str, units: str = "mm", decimals: int = 3,
-                   comments: list[str] | None = None) -> str:
+                   comments: list[str] | None = None, events: object = None) -> str:
     """Write a move table (of any dialect) as a Heidenhain Klartext program.
 
     Parameters
@@ -2821,6 +2821,9 @@ def write_klartext(moves: MoveTable, *, name: str, units: str = "mm", decimals: 
         Decimal places of coordinates (0..6).
     comments : list of str, optional
         Comment lines written after ``BEGIN PGM`` as ``; text``.
+    events : Carried, optional
+        The source's machining words by move (:func:`ilcnc.program.carry.carried_events`), written before and
+        after their moves.
 
     Returns
     -------
@@ -2847,7 +2850,11 @@ def write_klartext(moves: MoveTable, *, name: str, units: str = "mm", decimals: 
     w = _Writer(MM_PER_INCH if units == "inch" else 1.0, int(decimals))
     blocks = w.blocks
     blocks.extend(_comment_lines(comments))
+    from ilcnc.program.carry import Carried, klartext_blocks
+
+    carried = events if isinstance(events, Carried) else Carried()
     for i in range(len(moves)):
+        blocks.extend(klartext_blocks(carried.before.get(i, [])))
         kind = int(moves.kind[i])
         machine = bool(moves.flags[i] & FLAG_MACHINE)
         off = moves.offset_mm[i]
@@ -2865,6 +2872,8 @@ def write_klartext(moves: MoveTable, *, name: str, units: str = "mm", decimals: 
         else:
             w.arc(kind, moves.start_mm[i] - off, end, moves.center_mm[i] - off, plane, int(moves.turns[i]),
                   float(moves.feed_mm_min[i]))
+        blocks.extend(klartext_blocks(carried.after.get(i, [])))
+    blocks.extend(klartext_blocks(carried.tail))
     if w.offset != (0.0, 0.0, 0.0):
         w.datum((0.0, 0.0, 0.0))
     lines = [f"0 BEGIN PGM {pgm} {unit_word}"]
