@@ -12,7 +12,7 @@ from ilcnc.corrections import read_corrections
 from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes, write_atomic
 from ilcnc.program import GCODE_SUFFIXES, HEIDENHAIN_SUFFIXES, Program, read_program
-from ilcnc.program.model import FLAG_CUTTER_COMP, FLAG_HOME, FLAG_MACHINE
+from ilcnc.program.model import FLAG_CUTTER_COMP, FLAG_HOME, FLAG_MACHINE, MOVE_ARC_CW, STYLE_LITERAL
 from ilcnc.program.rewrite import apply_corrections
 
 __all__ = ["ExportResult", "export_program", "output_family"]
@@ -94,7 +94,7 @@ def export_program(
     moves = program.moves
     if corr is not None and np.any(corr):
         moves = _corrected_moves(program, corr)
-    dec = _min_decimals(program.units, profile_path, min_decimals)
+    dec = _conversion_decimals(program, _min_decimals(program.units, profile_path, min_decimals))
     from ilcnc.program.carry import carried_events
 
     events = carried_events(program)  # tool, spindle, coolant, dwells, stops, comments; or refused with the line
@@ -112,6 +112,34 @@ def export_program(
     write_atomic(out, text.encode("latin-1", errors="replace"), protect=protect)
     changed = 0 if corr is None else int(np.count_nonzero(np.any(corr != 0, axis=1)))
     return ExportResult(out, "convert", changed, 0)
+
+
+def _conversion_decimals(program: Program, least: int) -> int:
+    """Decimals of a converted program: the most its source wrote in a coordinate (a learned correction is not
+    rounded away), at least ``least`` and at most 6; more where fewer would round an arc's end onto its start
+    (a full circle the source does not cut)."""
+    program.resolve_spans()
+    mv = program.moves
+    lit = (mv.word_start >= 0) & ((mv.word_style & STYLE_LITERAL) != 0)
+    text = program.text
+    most = 0
+    for a, b in zip(mv.word_start[lit].tolist(), mv.word_end[lit].tolist(), strict=True):
+        dot = max(text.rfind(".", a, b), text.rfind(",", a, b))
+        if dot >= 0:
+            most = max(most, b - dot - 1)
+    dec = min(6, max(int(least), most))
+    arcs = np.flatnonzero(mv.kind >= MOVE_ARC_CW)
+    if arcs.size == 0:
+        return dec
+    delta = np.abs(mv.end_mm[arcs] - mv.start_mm[arcs]) / mv.unit_mm[arcs, None]
+    full = np.all(delta <= 1e-9, axis=1)  # the source's own full circles
+    for d in range(dec, 7):
+        collapsed = ~full & np.all(delta < 0.5 * 10.0 ** -d, axis=1)
+        if not collapsed.any():
+            return d
+    i = int(arcs[np.flatnonzero(collapsed)[0]])
+    raise InputError(program.path, int(mv.line[i]), "an arc whose end lies within 0.5e-6 of its start would be"
+                     " written as a full circle: not converted")
 
 
 def _refuse_unconvertible(program: Program, family: str) -> None:

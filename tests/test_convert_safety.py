@@ -248,3 +248,32 @@ def test_every_sample_converts_alike_or_is_refused(tmp_path, path):
     c = read_program(back)
     _same_motion(a, c, 6e-4 * (25.4 if a.units == "inch" else 1.0))
     assert _machining(c) == _machining(a)
+
+
+# -- item 6: the source's precision is kept, and no arc becomes a full circle -----------------------------------
+
+def test_a_tiny_arc_stays_tiny_and_the_source_precision_is_kept(tmp_path):
+    src = tmp_path / "tiny.ngc"
+    src.write_text("G21 G90 G17\nG0 X0 Y0 Z1\nG1 Z-1 F500\nG1 X10 Y0 F1000\nG3 X10.0003 Y0.0001 I0.0001 J0.5\n"
+                   "G1 X20 Y0\nG0 Z5\nM2\n")
+    out = tmp_path / "tiny.h"
+    rc, msg = _export(src, out)
+    assert rc == 0, msg
+    a, b = read_program(src), read_program(out)
+    _same_motion(a, b, 1e-9)
+    assert "C X+10.0003 Y+0.0001 DR+" in out.read_text()
+    # the 0.3 µm arc is not a full 1 mm circle: the path is as long as the source's
+    length = lambda p: float(np.sum(np.linalg.norm(p.moves.end_mm - p.moves.start_mm, axis=1)))  # noqa: E731
+    assert length(b) == pytest.approx(length(a), abs=1e-6)
+
+
+@pytest.mark.parametrize(("path", "decimals"), [(REPO / "samples" / "compass.ngc", 6),
+                                                (SAMPLES / "contour" / "Gates_combined_R12.nc", 4)])
+def test_conversion_writes_the_decimals_the_source_wrote(tmp_path, path, decimals):
+    out = tmp_path / "out.h"
+    rc, msg = _export(path, out)
+    assert rc == 0, msg
+    words = re.findall(r" [XYZ][+-]\d+\.(\d+)", out.read_text())
+    assert words and {len(w) for w in words} == {decimals}
+    a, b = read_program(path), read_program(out)
+    _same_motion(a, b, 0.5 * 10.0 ** -decimals + 1e-9)
