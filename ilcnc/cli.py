@@ -361,6 +361,10 @@ def learn(
                            " the first run shows error no end point can shape (learning.refine in the profile).")
     ] = False,
     cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
+    relearn: Annotated[
+        bool, typer.Option("--relearn", help="Start a new run on a program that is an output of an earlier run"
+                           " (refused by default: its corrections would be corrected again).")
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Learn corrections of the G01 end points and write the compensated program.
@@ -375,7 +379,7 @@ def learn(
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
                        log_period_s=log_period, points_reach_mm=points_reach, log_columns=log_columns,
                        log_offset=_parse_offset(log_offset), force=force,
-                       cutting_below_z_mm=cutting_below_z, refine=refine)
+                       cutting_below_z_mm=cutting_below_z, refine=refine, relearn=relearn)
     console = _console()
     try:
         if as_json or log is not None or points is not None:

@@ -144,6 +144,7 @@ class LearnRequest:
     force: bool = False
     cutting_below_z_mm: float | None = None
     refine: bool = False
+    relearn: bool = False
 
 
 @dataclass(slots=True)
@@ -243,10 +244,25 @@ def _resolve_part(req: LearnRequest, data: bytes, state: LearnState | None) -> t
         raise StateError(req.state, None, f"this learning state belongs to {state.part['name']} (sha256"
                          f" {state.part['sha256'][:16]}), not to {req.program.name}: use the state of this part or a new"
                          " --state directory")
+    if req.relearn:
+        return "new", None
     if stamp is not None:
         raise StateError(req.program, stamp["line"], f"is iteration {stamp['iteration']} of an ilcnc learning run on"
                          f" {stamp['name']} (provenance stamp): correcting it again would correct twice; learn the"
-                         " original program, or continue that run with its --state directory")
+                         " original program, continue that run with its --state directory, or --relearn")
+    # an unstamped output: recognised by its hash in the state a run keeps beside it (OUT.state)
+    sibling = _default_state_dir(req.program)
+    if LearnState.exists(sibling):
+        try:
+            earlier = LearnState.load(sibling)
+        except StateError:
+            return "new", None  # a damaged state beside it is not this program's record
+        for h in (sha, sha256_bytes(unstamp_text(text).encode("latin-1"))):
+            entry = earlier.find_program(h)
+            if entry is not None and entry.iteration > 0:
+                raise StateError(req.program, None, f"is iteration {entry.iteration} of the learning run in {sibling}"
+                                 f" on {earlier.part['name']}: learning it again would correct it twice; learn"
+                                 f" {earlier.part['name']}, continue that run with --state {sibling}, or --relearn")
     return "new", None
 
 

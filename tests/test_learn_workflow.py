@@ -254,6 +254,27 @@ def test_stamp_and_correcting_twice(tmp_path) -> None:
                                                      sha256="0" * 64, iteration=2).splitlines()[0]
 
 
+def test_an_unstamped_output_is_not_corrected_twice_by_default(tmp_path) -> None:
+    """Issue 20 item 11: `ilcnc learn jsdc.ilc.gcode ...` (an output without a stamp, its state beside it) was
+    corrected again. It is refused, naming the run; --relearn starts anew on purpose."""
+    out = tmp_path / "jsdc.ilc.gcode"
+    _json("learn", JSDC, "--profile", SEED004, "--out", out, "--iterations", "1")
+    assert find_stamp(out.read_text(encoding="latin-1")) is None
+    code, msg = _run("learn", out, "--profile", SEED004, "--out", tmp_path / "twice.gcode", "--iterations", "1")
+    line = _error_line(msg)
+    assert code == 1 and "correct it twice" in line and "jsdc.ilc.gcode.state" in line and "iteration 1" in line
+    assert not (tmp_path / "twice.gcode").exists() and not (tmp_path / "twice.gcode.state").exists()
+    data = _json("learn", out, "--profile", SEED004, "--out", tmp_path / "twice.gcode", "--iterations", "1",
+                 "--relearn")
+    assert data["status"] in ("max_iterations", "stopped", "converged", "diverged")
+    # a state beside a program that holds it as its original (iteration 0) does not refuse it
+    orig = tmp_path / "part.gcode"
+    orig.write_bytes(JSDC.read_bytes())
+    _json("learn", orig, "--profile", SEED004, "--out", tmp_path / "p1.gcode", "--iterations", "1",
+          "--state", tmp_path / "part.gcode.state")
+    _json("learn", orig, "--profile", SEED004, "--out", tmp_path / "p2.gcode", "--iterations", "1")
+
+
 def test_state_survives_a_crash_while_writing(tmp_path, monkeypatch) -> None:
     out = tmp_path / "o.gcode"
     _json("learn", JSDC, "--profile", SEED004, "--out", out, "--iterations", "1")
