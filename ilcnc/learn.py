@@ -48,10 +48,12 @@ from ilcnc.air import (
     profile_move_classes,
 )
 from ilcnc.command_error import CommandSignal, error_kind, measurement_gate_mm, signal_of_simulation
+from ilcnc.errors import UnsupportedError
 from ilcnc.feed import FeedLaw, FeedOutcome, move_errors_mm, move_times_s
 from ilcnc.laws import AXES, LearningLaw, cut_runs, make_law
 from ilcnc.profile import MachineProfile
 from ilcnc.program.model import (
+    FLAG_CUTTER_COMP,
     FLAG_DERIVED,
     FLAG_HOME,
     FLAG_MACHINE,
@@ -687,6 +689,20 @@ def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], mea
     return u, clips, ModelSteps(made, pred, reason)
 
 
+def require_learnable(program: Program) -> None:
+    """Raise :class:`UnsupportedError` (with the line) for a program the virtual CNC cannot run as the machine
+    does: one it could not read in full, motion it does not model (a cycle's own), or cutter radius
+    compensation (the machine runs the tool-centre path; issue 20 item 10)."""
+    program.require_modelled()
+    comp = np.flatnonzero(program.moves.flags & FLAG_CUTTER_COMP)
+    if comp.size:
+        raise UnsupportedError(program.path, int(program.moves.line[comp[0]]), "cutter radius compensation"
+                               " (G41/G42, RL/RR) is active here: the machine runs the tool-centre path, which the"
+                               " virtual CNC does not model; learning the programmed contour would correct another"
+                               " path (learn a tool-centre program: CAM output with compensation in the computer,"
+                               " G40 / R0)")
+
+
 def program_with_corrections(
     program: Program, corrections_mm: NDArray[np.float64], profile: MachineProfile, *,
     feed_scale: NDArray[np.float64] | None = None,
@@ -771,7 +787,7 @@ def learn_virtual(
     from ilcnc.simulate import simulate_program
     from ilcnc.stream import simulate_streamed, stream_unsupported
 
-    program.require_complete()
+    require_learnable(program)
     n_iter = profile.learning.iterations if iterations is None else int(iterations)
     kind = error_kind(profile) if error is None else error
     learner = Learner.for_program(program, profile, law)

@@ -134,6 +134,8 @@ def measure_log(
     LogError
         The log does not belong to the program (lines, path, duration, coverage).
     """
+    original.require_modelled()
+    ran.require_modelled()
     from ilcnc.contour import PathGeometry, contour_error, guess_hints
     from ilcnc.plan import plan_program
 

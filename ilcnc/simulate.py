@@ -164,7 +164,7 @@ def simulate_program(
     from ilcnc.contour import PathGeometry, contour_error
     from ilcnc.drives import simulate_drives
 
-    program.require_complete()
+    program.require_modelled()
     target = against if against is not None else program
     move_map = _check_against(program, against)
     _check_travel(program, profile)

@@ -146,7 +146,7 @@ def simulate_streamed(
     why = stream_unsupported(profile, "path")
     if why:
         raise ValueError(why)
-    program.require_complete()
+    program.require_modelled()
     target = against if against is not None else program
     move_map = _check_against(program, against)
     _check_travel(program, profile)

@@ -46,6 +46,7 @@ from ilcnc.learn import (
     program_with_corrections,
     refine_for_learning,
     refine_from_errors,
+    require_learnable,
 )
 from ilcnc.measure import path_position_mm
 from ilcnc.profile import MachineProfile, load_profile
@@ -383,6 +384,7 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
     else:
         original = read_program(req.program, default_units=profile.machine.units, data=data)
         _out_suffix_matches(original, req.out)  # before refining: a refusal costs no run
+        require_learnable(original)  # before the state: a refusal leaves nothing behind
         refinement = refine_for_learning(original, profile) if refine else None  # before the state: a refusal makes none
         state = _new_state(state_dir, original, data, profile, profile_sha,
                            refined=refinement is not None and refinement.inserted.n_inserted > 0)
@@ -390,6 +392,8 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
             _store_refinement(state, refinement)
             notes.extend(refinement.notes())
         u0, first = None, 0
+    # what the reader read but does not model (rotary words, dwells, cycles, ...): in sight, not only in inspect
+    notes[:0] = [f"reader: {w}" for w in original.warnings[:5]]
     learning = _learning_program(state, original, profile)
     writer = _record_writer(state, learning)
     f0 = None

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from ilcnc.corrections import write_corrections
+from ilcnc.errors import CorrectionError
 from ilcnc.export import export_program
 from ilcnc.program import read_program
 
@@ -48,6 +49,11 @@ def _strip_coords(line: str) -> str:
 def _check_corrected(src: Path, tmp_path: Path, pick: np.ndarray, rng: np.random.Generator) -> None:
     prog = read_program(src)
     n = prog.n_commands
+    # a command that starts an arc may only move along the arc's circle (the learner keeps it there; a random
+    # correction would move it off, and export refuses that: test_a_correction_may_not_move_an_arc_start_off)
+    nxt = np.minimum(prog.command_moves + 1, len(prog.moves) - 1)
+    starts_arc = (prog.moves.kind[nxt] >= 2) & (prog.command_moves + 1 < len(prog.moves))
+    pick = pick[~starts_arc[pick]]
     corr = np.zeros((n, 3))
     corr[pick] = rng.uniform(-0.05, 0.05, size=(len(pick), 3))
     corr = np.round(corr, 3)
@@ -206,3 +212,20 @@ def test_gcode_to_klartext_and_back_keeps_every_g01(src: Path, tmp_path: Path) -
         assert np.max(np.abs(a - b)) <= tol
     text = h.read_text()
     assert text.upper().startswith("0 BEGIN PGM PART") and text.upper().rstrip().endswith("END PGM PART " + prog.units.upper())
+
+
+def test_a_correction_may_not_move_an_arc_start_off_its_circle(tmp_path: Path) -> None:
+    """A corrections file that moves the start of an arc 0.05 mm off its circle would give the control an arc it
+    refuses (and the readers refuse it too): refused with the arc's line, nothing written."""
+    src = OWN / "circle.ngc"
+    prog = read_program(src)
+    nxt = prog.command_moves + 1
+    k = int(np.flatnonzero((nxt < len(prog.moves)) & (prog.moves.kind[np.minimum(nxt, len(prog.moves) - 1)] >= 2))[0])
+    corr = np.zeros((prog.n_commands, 3))
+    corr[k] = [0.05, 0.05, 0.0]
+    csv = tmp_path / "corr.csv"
+    csv.write_text(write_corrections(corr))
+    out = tmp_path / "out.ngc"
+    with pytest.raises(CorrectionError, match="off its circle"):
+        export_program(src, out, corrections_path=csv)
+    assert not out.exists()

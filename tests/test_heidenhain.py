@@ -253,9 +253,12 @@ def test_stray_cr_inside_a_comment_keeps_line_numbers(samples):
 
 def test_cycle_calls_of_old_cycles_are_warnings(samples):
     p = samples["lk_668.h"]
-    assert p.unsupported is None
-    assert p.n_commands == 9
+    assert p.unsupported is None  # read in full: inspect, copy, rewrite
+    # the eight pocket positions are the cycle's, not commands (issue 20 item 8): the final retract is the only one
+    assert p.n_commands == 1
     assert any("cycle 5 CIRCULAR POCKET" in w and "8 time(s)" in w for w in p.warnings)
+    # the pocket's own motion is not modelled: no simulation or learning of it (refused with the first call)
+    assert p.unmodelled is not None and p.unmodelled[0] == 12 and "CIRCULAR POCKET" in p.unmodelled[1]
 
 
 def test_cycle_calls_of_old_cycles_in_cam_output_are_warnings(samples):
@@ -698,11 +701,37 @@ def test_parameter_words_with_spaces():
 
 
 def test_byte_order_mark_tabs_and_arc_warning():
-    text = "\xef\xbb\xbf" + pgm("L\tX+1\tY+2\tF100", "CC X+0 Y+0", "C X+0 Y+3 DR+")
+    # 0.02 mm off the circle: within what the G-code reader accepts of an arc (0.028 mm), so a warning
+    text = "\xef\xbb\xbf" + pgm("L\tX+1\tY+2\tF100", "CC X+0 Y+0", "C X+0 Y+2.256 DR+")
     p = read_text(text)
     assert p.moves.end_mm[0].tolist() == [1, 2, 0]
     assert p.text[p.moves.word_start[0, 0]:p.moves.word_end[0, 0]] == "+1"
+    assert p.unsupported is None
     assert any("off the circle" in w for w in p.warnings)
+    # 0.76 mm off: refused with the line, as the G-code reader refuses such an arc (issue 20 item 7)
+    p = read_text("\xef\xbb\xbf" + pgm("L\tX+1\tY+2\tF100", "CC X+0 Y+0", "C X+0 Y+3 DR+"))
+    assert p.unsupported is not None and "off the circle" in p.unsupported[1]
+
+
+@pytest.mark.parametrize(("blocks", "problem"), [
+    (("L X+10 F-500",), "negative feed rate"),
+    (("L X+10 F0",), "zero feed rate"),
+    (("L X+10 Y+0 F100", "CC X+10 Y+0", "C X+0 Y+10 DR+"), "zero radius"),
+    (("L X+10 Y+0 F100", "CC X+0 Y+0", "C X+0 Y+16.18 DR+"), "6.1800 mm off the circle"),
+])
+def test_klartext_refuses_what_the_gcode_reader_refuses(blocks, problem):
+    """Issue 20 item 7: invalid Klartext was read with a warning or silently; the G-code reader refuses the
+    same moves (negative or zero feed, a centre at the start, an end point off the circle)."""
+    p = read_text(pgm("L X+0 Y+0 Z+5 R0 FMAX", *blocks))
+    assert p.unsupported is not None and problem in p.unsupported[1]
+    assert p.unsupported[0] == 2 + len(blocks)  # the last block's line (BEGIN PGM is line 1)
+
+
+def test_klartext_blocks_with_rotary_words_are_never_corrected():
+    """Issue 20 item 9: Klartext learning rewrote L blocks carrying A+5; G-code freezes such blocks."""
+    p = read_text(pgm("L X+0 Y+0 Z+5 R0 FMAX", "L Z-1 F100", "L X+10 A+5 F500", "L X+20 F500"))
+    assert p.moves.command.tolist() == [-1, 0, -1, 1]
+    assert any("rotary" in w for w in p.warnings)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -809,7 +838,9 @@ def test_spans_drive_the_rewriter(path):
     from ilcnc.program.rewrite import apply_corrections
 
     p = read(path)
-    corr = np.random.default_rng(3).uniform(-0.05, 0.05, (p.n_commands, 3)).round(3)
+    # at most 0.01 mm per axis: a correction before a C moves the arc's start off its circle (the learner keeps
+    # it on the circle, this test does not), and beyond 0.028 mm the reader refuses such an arc as the TNC would
+    corr = np.random.default_rng(3).uniform(-0.01, 0.01, (p.n_commands, 3)).round(3)
     text, edits = apply_corrections(p, corr, min_decimals=3)
     assert edits
     q = read_heidenhain(path, text.encode("latin-1"))
@@ -901,7 +932,7 @@ def test_writer_lines_and_rapids():
 
 def test_writer_multi_turn_helix_and_xz_arcs():
     p = read_text(pgm("L X+10 Y+0 Z+0 F100", "CC X+0 Y+0", "CP IPA+720 IZ-4 DR+", "CP IPA-450 Z-9 DR-",
-                      "CC X+0 Z-9", "C X-10 Z-9 DR+"))
+                      "CC X-5 Z-9", "C X-10 Z-9 DR+"))  # (CC X+0 Z-9 put the centre on the start: refused)
     mv = p.moves
     assert mv.turns.tolist() == [1, 2, 2, 1]
     assert mv.plane[-1] == PLANE_XZ
@@ -968,3 +999,23 @@ def test_cycle_32_in_numpy_runs_and_for_held_moves(monkeypatch):
         assert np.all(mv.blend_tol_mm[1:arc - 1] == 0.05)
         assert np.all(mv.blend_tol_mm[arc - 1:] == 0.001)  # from the line before RND on
     np.testing.assert_array_equal(fast.moves.blend_tol_mm, slow.moves.blend_tol_mm)
+
+
+def test_cycle_positions_are_never_corrected():
+    """Issue 20 item 8: learning lk_668.h moved pocket-centre positioning blocks (X+32,000 -> X+32,0012). The move
+    that brings the tool to a cycle's position (before CYCL CALL, with M99, under M89) is not a command."""
+    p = read_text(pgm("TOOL CALL 3 Z S5000", "CYCL DEF 5.0 CIRCULAR POCKET", "CYCL DEF 5.1 SET UP-2,000",
+                      "CYCL DEF 5.2 DEPTH -5,900", "CYCL DEF 5.3 PECKG -1,500 F50", "CYCL DEF 5.4 RADIUS1,650",
+                      "CYCL DEF 5.5 F50 DR-", "L X+32,000 Y+0,000 Z+2,000 R0 F5000 M13", "CYCL CALL M",
+                      "L X-21,000 Y+12,167 R0 F5000 M99", "L X+0 Y+0 F800", "L X+10 F800", "L Z+100 R0 F5000 M2"))
+    assert p.unsupported is None
+    mv = p.moves
+    assert mv.command.tolist() == [-1, -1, 0, 1, 2]  # the two positions are not commands; the contour is
+    assert p.n_commands == 3
+
+
+def test_lk_668_positions_are_not_commands():
+    path = shared_sample("heidenhain", "lk_668.h")
+    p = read_heidenhain(path, path.read_bytes())
+    # eight pocket positions at F5000, each followed by CYCL CALL: none is a command; the retract is the only one
+    assert p.n_commands == 1 and p.command_line.tolist() == [27]

@@ -395,3 +395,26 @@ def test_stamp_goes_inside_the_first_comment_when_it_holds_a_semicolon(tmp_path)
 def test_log_period_option_reads_a_halsampler_log_at_its_own_rate(tmp_path) -> None:
     code, out = _run("learn", "--help")
     assert code == 0 and "--log-period" in out
+
+
+def test_virtual_learning_refuses_cutter_compensation_and_unmodelled_cycles(tmp_path) -> None:
+    """Issue 20 items 8 and 10: a compensated contour (the machine runs the tool-centre path) and a program whose
+    cycles move the tool unmodelled are refused with the line, and nothing is left behind."""
+    prog = tmp_path / "comp.ngc"
+    prog.write_text("G21 G90 G17\nG0 X0 Y0 Z1\nG1 Z0 F300\nG41 D1 G1 X10 F600\nG1 Y10\nG1 X0\nG40 G1 Y0\nM2\n")
+    code, msg = _run("learn", prog, "--profile", SEED004, "--out", tmp_path / "o.ngc", "--iterations", "1")
+    line = _error_line(msg)
+    assert code == 1 and "comp.ngc:4:" in line and "cutter radius compensation" in line
+    pocket = tmp_path / "pocket.h"
+    pocket.write_text("0 BEGIN PGM P MM\n1 TOOL CALL 3 Z S5000\n2 CYCL DEF 5.0 CIRCULAR POCKET\n"
+                      "3 CYCL DEF 5.1 SET UP-2\n4 CYCL DEF 5.2 DEPTH -5.9\n5 CYCL DEF 5.3 PECKG -1.5 F50\n"
+                      "6 CYCL DEF 5.4 RADIUS1.65\n7 CYCL DEF 5.5 F50 DR-\n8 L X+32 Y+0 Z+2 R0 F5000 M13\n"
+                      "9 CYCL CALL M\n10 L X+0 Y+0 F800\n11 L X+10 F800\n12 L Z+100 R0 F5000 M2\n13 END PGM P MM\n")
+    for args in (("learn", pocket, "--profile", SEED004, "--out", tmp_path / "p.h", "--iterations", "1"),
+                 ("simulate", pocket, "--profile", SEED004)):
+        code, msg = _run(*args)
+        line = _error_line(msg)
+        assert code == 1 and "pocket.h:10:" in line and "cycle 5 CIRCULAR POCKET" in line and "not modelled" in line
+    code, msg = _run("inspect", pocket)  # read in full: it can still be inspected
+    assert code == 0, msg
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["comp.ngc", "pocket.h"]

@@ -839,6 +839,8 @@ class _Lexer:
                 mo.insert_at = base + end
             else:
                 mo.rotary = True
+        elif cls == "rot":  # A, B, C, U, V, W (and IA ..): read, not modelled; the block is never corrected
+            mo.rotary = True
         elif cls == "polar":
             mo.polar[key] = (value, inc)
         elif cls in ("len", "cca", "mb", "la"):
@@ -1705,7 +1707,10 @@ class _Interp:
                                 "is not converted to mm/min; feed unknown")
                 self.feed = _NAN
             return False
-        self.feed = self.feed_value(f, line)
+        value = self.feed_value(f, line)
+        if value < 0:
+            raise _Stop(line, f"negative feed rate F{value / self.unit:g}")
+        self.feed = value
         return False
 
     def feed_value(self, f: Any, line: int) -> float:
@@ -1785,7 +1790,11 @@ class _Interp:
                 flags |= FLAG_MACHINE
             ws, we, wd, wst, wi = _spans(mo)
             kind = MOVE_RAPID if rapid else MOVE_LINE
-            corr = not (rapid or param or machine)
+            if not rapid:
+                self.check_feed(line)
+            # a block with a rotary or parallel axis word is never corrected (as in G-code): what it does with
+            # that axis is not modelled
+            corr = not (rapid or param or machine or mo.rotary)
             off = tuple(self.off) if not machine else tuple(0.0 if ws[a] >= 0 else self.off[a] for a in range(3))
             self.emit([kind, line, self.pos, end, _NAN if rapid else self.feed, off, _NAN3, self.plane,
                        1, corr, flags, ws, we, wd, wst, wi, _NONE3, _NONE3, _ZERO3, _ZERO3, _FALSE3, mo.insert_at],
@@ -1943,11 +1952,18 @@ class _Interp:
         if machine:
             raise _Stop(line, "M91/M92 on a circle or polar move is not modelled")
         rapid = self.set_feed(mo.feed, line)
+        if not rapid:
+            self.check_feed(line)
         flags = self.comp_flags(mo.rcomp)
         if mo.rotary:
             self.warn("rot", f"line {line}: rotary axis words (A, B, C, U, V, W) are read but not modelled")
         self.check_frame(line)
         return mo, line, rapid, flags
+
+    def check_feed(self, line: int) -> None:
+        """A feed move needs a positive feed (the G-code reader refuses the same)."""
+        if self.feed == 0.0:
+            raise _Stop(line, "feed move with zero feed rate (F0)")
 
     def epilogue(self, mo: _Motion, line: int) -> int | None:
         if mo.ms and self.m_post(mo.ms, line, True):
@@ -1973,12 +1989,20 @@ class _Interp:
         return self.epilogue(mo, line)
 
     def check_radius(self, start: list[float], end: list[float], centre: list[float], plane: int, line: int) -> None:
-        """Warn when the end point of a C is off the circle through its start (the TNC may reject it)."""
+        """Refuse a C whose centre is its start, or whose end point is off the circle through its start by more
+        than the G-code reader allows an arc (LinuxCNC's limits: 0.028 mm and 0.1 % of the radius); warn from
+        ``ARC_TOLERANCE_MM`` on (the TNC may reject it)."""
         i0, i1, _i2 = PLANE_AXES[plane]
         r0 = math.hypot(start[i0] - centre[i0], start[i1] - centre[i1])
         r1 = math.hypot(end[i0] - centre[i0], end[i1] - centre[i1])
-        if abs(r1 - r0) > ARC_TOLERANCE_MM:
-            self.warnings.append(f"line {line}: the end point of C is {abs(r1 - r0):.4f} mm off the circle "
+        if r0 < 1e-9:
+            raise _Stop(line, "circle with zero radius (the centre CC is the start point)")
+        off = abs(r1 - r0)
+        if off > 0.02 * math.sqrt(2.0) and off > 1e-3 * r0:
+            raise _Stop(line, f"the end point of C is {off:.4f} mm off the circle (radius {r0:.4f} mm at the start,"
+                              f" {r1:.4f} mm at the end)")
+        if off > ARC_TOLERANCE_MM:
+            self.warnings.append(f"line {line}: the end point of C is {off:.4f} mm off the circle "
                                  f"(radius {r0:.4f} mm at the start, {r1:.4f} mm at the end)")
 
     def h_cr(self, blk: _Block, i: int) -> int | None:
@@ -2477,6 +2501,8 @@ class _Interp:
             label = f"cycle {num} {name}".strip()
             raise _Stop(line, f"{label} (defined at line {dline}) moves the tool; its motion is not modelled")
         self.cycle_calls.setdefault(dline, [num, name, []])[2].append(line)
+        # the move that brought the tool to the cycle's position is the cycle's, not a contour's: never corrected
+        self.b.uncommand_last()
 
     def cycle_warnings(self) -> None:
         for dline, (num, name, lines) in self.cycle_calls.items():
@@ -2638,9 +2664,15 @@ def read_heidenhain(path: Path, data: bytes) -> Program:
         warnings.append(f"line {lex.skipped_lines[0]}: blocks marked '/' ({len(lex.skipped_lines)}) are read as "
                         "executed (block skip off)")
     warnings.extend(interp.warnings)
+    unmodelled = None
+    for dline, (num, cname, lines) in interp.cycle_calls.items():
+        unmodelled = (lines[0], f"cycle {num} {cname} (defined at line {dline}) moves the tool at its {len(lines)}"
+                                f" call(s); that motion is not modelled, so a run of the program is neither simulated"
+                                " nor learned (the contour around it would be judged without it)")
+        break
     return Program(
         path=path, text=text, dialect="heidenhain", units="inch" if unit_word == "INCH" else "mm", moves=moves,
-        name=name, warnings=warnings, unsupported=interp.unsupported,
+        name=name, warnings=warnings, unsupported=interp.unsupported, unmodelled=unmodelled,
     )
 
 

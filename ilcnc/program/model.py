@@ -276,6 +276,22 @@ class MoveTableBuilder:
         c["block_time"].append(block_time)
         return k
 
+    def uncommand_last(self) -> bool:
+        """Make the last move, if it is the last command, no command (a cycle's position: never corrected);
+        True if it was one."""
+        c = self._cols
+        if c["kind"]:
+            if c["command"][-1] >= 0:
+                c["command"][-1] = -1
+                self.n_commands -= 1
+                return True
+            return False
+        if self._chunks and len(self._chunks[-1]) and self._chunks[-1].command[-1] >= 0:
+            self._chunks[-1].command[-1] = -1
+            self.n_commands -= 1
+            return True
+        return False
+
     def build(self) -> MoveTable:
         """Freeze the collected moves into numpy arrays."""
         self._flush()
@@ -348,6 +364,12 @@ class Program:
         Program name (Klartext ``BEGIN PGM name``; G-code: the file stem).
     warnings : list of str
         Things read but not modelled (e.g. a dwell), one line each.
+    unsupported : (int, str) or None
+        Line and problem where the interpretation stopped (a construct it does not model).
+    unmodelled : (int, str) or None
+        Line and problem of motion that was read in full but is not modelled (a Klartext cycle's own motion):
+        the program may be inspected, copied and rewritten, never simulated or learned
+        (:meth:`require_modelled`).
     """
 
     path: Path
@@ -358,6 +380,7 @@ class Program:
     name: str = ""
     warnings: list[str] = field(default_factory=list)
     unsupported: tuple[int, str] | None = None
+    unmodelled: tuple[int, str] | None = None
     span_resolver: Callable[[Program, NDArray[np.int64]], None] | None = None
     _commands: NDArray[np.int64] | None = None
     _line_starts: NDArray[np.int64] | None = None
@@ -390,6 +413,15 @@ class Program:
         """
         if self.unsupported is not None:
             line, problem = self.unsupported
+            raise UnsupportedError(self.path, line, problem)
+
+    def require_modelled(self) -> None:
+        """:meth:`require_complete`, and raise :class:`UnsupportedError` when the program moves the tool in a way
+        the interpretation records but does not model (a Klartext pocket or pecking cycle's own motion): a run of
+        it cannot be simulated or measured against its path."""
+        self.require_complete()
+        if self.unmodelled is not None:
+            line, problem = self.unmodelled
             raise UnsupportedError(self.path, line, problem)
 
     @property

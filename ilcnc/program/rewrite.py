@@ -18,6 +18,7 @@ zero, trailing dot).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,7 @@ from ilcnc.program.model import (
     FLAG_HOME,
     FLAG_MACHINE,
     MOVE_ARC_CW,
+    PLANE_AXES,
     STYLE_COMMA,
     STYLE_LITERAL,
     STYLE_NO_LEADING_ZERO,
@@ -40,6 +42,8 @@ __all__ = ["Edit", "apply_corrections", "format_number", "spelling"]
 
 _LETTERS = "XYZ"
 _CENTER_LETTERS = "IJK"
+#: How far a moved arc start may leave its circle, mm (LinuxCNC's limit for mm programs: 0.02·√2).
+ARC_RADIUS_TOLERANCE_MM = 0.02 * math.sqrt(2.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -379,11 +383,21 @@ def _rewrite_move(
 
 def _rewrite_center(program: Program, i: int, start_real: NDArray[np.float64], klartext: bool, min_decimals: int,
                     edits: list[Edit]) -> None:
-    """Keep an arc's centre where it was when its start moved (incremental centre words)."""
+    """Keep an arc's centre where it was when its start moved (incremental centre words); refuse a start moved
+    off the circle by more than a control accepts (LinuxCNC's limit, which both readers apply: 0.028 mm and
+    0.1 % of the radius). The learner keeps arc starts on their circle; a corrections file may not."""
     mv = program.moves
     text = program.text
     unit = float(mv.unit_mm[i])
     line = int(mv.line[i])
+    i0, i1, _i2 = PLANE_AXES.get(int(mv.plane[i]), PLANE_AXES[17])
+    c = mv.center_mm[i]
+    r0 = math.hypot(start_real[i0] - c[i0], start_real[i1] - c[i1])
+    r1 = math.hypot(mv.end_mm[i, i0] - c[i0], mv.end_mm[i, i1] - c[i1])
+    if abs(r1 - r0) > ARC_RADIUS_TOLERANCE_MM and abs(r1 - r0) > 1e-3 * r1:
+        raise CorrectionError(program.path, line, f"the correction before this arc moves its start"
+                              f" {abs(r1 - r0):.4f} mm off its circle (radius {r1:.4f} mm): a control refuses such an"
+                              " arc; correct the point along the circle")
     for a in range(3):
         cs = int(mv.center_start[i, a])
         if cs < 0 or not mv.center_incremental[i, a]:
