@@ -12,7 +12,7 @@ from ilcnc.corrections import read_corrections
 from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes, write_atomic
 from ilcnc.program import GCODE_SUFFIXES, HEIDENHAIN_SUFFIXES, Program, read_program
-from ilcnc.program.model import FLAG_CUTTER_COMP, FLAG_HOME, FLAG_MACHINE, MOVE_ARC_CW, STYLE_LITERAL
+from ilcnc.program.model import FLAG_CUTTER_COMP, FLAG_HOME, FLAG_MACHINE, MOVE_ARC_CW, MOVE_RAPID, STYLE_LITERAL
 from ilcnc.program.rewrite import apply_corrections
 
 __all__ = ["ExportResult", "export_program", "output_family"]
@@ -148,6 +148,10 @@ def _refuse_unconvertible(program: Program, family: str) -> None:
     (a position the machine builder defines; ``G53`` is machine zero), G-code ``G28``/``G30`` (a home position
     stored in the machine, which Klartext cannot name)."""
     mv = program.moves
+    unknown = np.flatnonzero((mv.kind != MOVE_RAPID) & ~(mv.feed_mm_min > 0) & ~np.isfinite(mv.block_time_s))
+    if unknown.size:
+        raise InputError(program.path, int(mv.line[unknown[0]]), "a feed move without a known feed (no F before it):"
+                         " the other dialect would refuse it or run it at another speed: not converted")
     comp = np.flatnonzero(mv.flags & FLAG_CUTTER_COMP)
     if comp.size:
         raise InputError(program.path, int(mv.line[comp[0]]), "cutter radius compensation (G41/G42, RL/RR) is not"
