@@ -17,7 +17,7 @@ from ilcnc.program import read_program
 from ilcnc.program.carry import carried_events
 from ilcnc.program.model import FLAG_MACHINE
 
-from .conftest import OWN, REPO, SAMPLES
+from .conftest import OWN, REPO, SAMPLES, TEST_ONLY, shared_param
 
 runner = CliRunner()
 
@@ -38,7 +38,11 @@ def _same_motion(a, b, tol_mm: float) -> None:
     assert np.array_equal(ma.flags & FLAG_MACHINE, mb.flags & FLAG_MACHINE)
     assert np.abs(ma.end_mm - mb.end_mm).max() <= tol_mm
     work = (ma.flags & FLAG_MACHINE) == 0  # a machine move's position does not depend on the work offset
-    assert np.abs(ma.offset_mm[work] - mb.offset_mm[work]).max() <= tol_mm
+    if work.any():
+        assert np.abs(ma.offset_mm[work] - mb.offset_mm[work]).max() <= tol_mm
+    # the same feed on every feed move (written with at least one decimal in program units per minute)
+    fed = ma.kind != 0
+    assert np.allclose(mb.feed_mm_min[fed], ma.feed_mm_min[fed], rtol=1e-6, atol=0.051 * 25.4), "feeds differ"
 
 
 def test_m91_retract_becomes_g53_not_a_work_rapid(tmp_path):
@@ -220,9 +224,10 @@ def _machining(program) -> list[tuple[str, object]]:
 
 _CONVERTIBLE = sorted(p for p in [*(REPO / "samples").glob("*.*"), *OWN.glob("*.*"), *SAMPLES.rglob("*.*")]
                       if p.suffix.lower() in (".h", ".ngc", ".nc", ".gcode", ".tap") and "large" not in p.parts)
+_TEST_ONLY = [shared_param(folder, name) for folder, names in TEST_ONLY.items() for name in names]
 
 
-@pytest.mark.parametrize("path", _CONVERTIBLE, ids=lambda p: p.name)
+@pytest.mark.parametrize("path", [*_CONVERTIBLE, *_TEST_ONLY], ids=lambda p: p.name)
 def test_every_sample_converts_alike_or_is_refused(tmp_path, path):
     """Both directions on every sample the reader runs: the output reads back with the same motion (kind,
     machine flag, end point within the written decimals) and the same machining words in the same order, and
@@ -277,3 +282,18 @@ def test_conversion_writes_the_decimals_the_source_wrote(tmp_path, path, decimal
     assert words and {len(w) for w in words} == {decimals}
     a, b = read_program(path), read_program(out)
     _same_motion(a, b, 0.5 * 10.0 ** -decimals + 1e-9)
+
+
+@pytest.mark.parametrize(("text", "suffix", "line"), [
+    ("0 BEGIN PGM R MM\n1 L X+0 Y+0 Z+5 R0 FMAX\n2 L X+10 A+5 F500\n3 END PGM R MM\n", ".h", 3),
+    ("0 BEGIN PGM R MM\n1 L X+0 Y+0 Z+5 R0 FMAX\n2 L X+20 W+5 F500\n3 END PGM R MM\n", ".h", 3),
+    ("G21 G90\nG0 X0 Y0 Z5\nG1 X10 A45 F500\nM2\n", ".ngc", 3),
+])
+def test_rotary_and_parallel_axes_are_refused_not_dropped(tmp_path, text, suffix, line):
+    """Issue 20 item 5: `L X+10 A+5 F500` became `G1 X10.000`; `G1 X10 A45` became `L X+10.000`."""
+    src = tmp_path / ("r" + suffix)
+    src.write_text(text)
+    out = tmp_path / ("r.ngc" if suffix == ".h" else "r.h")
+    rc, msg = _export(src, out)
+    assert rc == 1 and f"{src.name}:{line}:" in msg.replace("\n", "") and "axis" in msg
+    assert not out.exists()
