@@ -305,3 +305,26 @@ def test_fast_path_equals_general_path_with_path_control_and_inverse_time(monkey
     for name in ("kind", "line", "command", "flags", "plane", "unit_mm", "start_mm", "end_mm", "feed_mm_min",
                  "blend_tol_mm", "block_time_s"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_a_block_number_before_the_closing_percent(tmp_path):
+    """Issue 21: Mach3 posts end with `N890 %`; it was refused ("'%' must stand alone on its line"). A block
+    number alone may precede the closing percent; the motion is LinuxCNC's (rs274, where installed)."""
+    import re as _re
+    import shutil
+    import subprocess
+
+    src = tmp_path / "mach3.nc"
+    src.write_text("%\nN10 G21 G90\nN20 G0 X0 Y0 Z5\nN30 G1 Z-1 F100\nN40 X10\nN50 Y4\nN60 M30\nN70 %\n")
+    p = read_program(src)
+    assert p.unsupported is None and p.n_commands == 3
+    assert p.command_end_mm.tolist() == [[0.0, 0.0, -1.0], [10.0, 0.0, -1.0], [10.0, 4.0, -1.0]]
+    # anything else before the percent is still refused
+    bad = tmp_path / "bad.nc"
+    bad.write_text("%\nG21 G90\nG1 X1 F100\nG1 X2 %\n")
+    with pytest.raises(ProgramError, match="'%' must stand alone"):
+        read_program(bad)
+    if shutil.which("rs274"):
+        out = subprocess.run(["rs274", "-g", str(src)], capture_output=True, text=True, timeout=60).stdout
+        feeds = [[float(v) for v in m.group(1).split(",")[:3]] for m in _re.finditer(r"STRAIGHT_FEED\(([^)]*)\)", out)]
+        assert feeds == p.command_end_mm.tolist()

@@ -1019,3 +1019,15 @@ def test_lk_668_positions_are_not_commands():
     p = read_heidenhain(path, path.read_bytes())
     # eight pocket positions at F5000, each followed by CYCL CALL: none is a command; the retract is the only one
     assert p.n_commands == 1 and p.command_line.tolist() == [27]
+
+
+def test_feed_forms_with_a_space():
+    """Issue 21: `F AUTO` (the feed of the TOOL CALL) was refused ("missing number after 'A'"); `F MAX` too."""
+    p = read_text(pgm("TOOL CALL 1 Z S3000 F200", "L X+0 Y+0 Z+5 R0 FMAX", "L Z-1 F AUTO", "L X+10 F MAX",
+                      "L X+20 FU0.1", "L X+30 FZ0.05"))
+    assert p.unsupported is None
+    mv = p.moves
+    assert mv.kind.tolist() == [0, 1, 0, 1, 1]
+    assert mv.feed_mm_min[1] == 200.0  # the tool call's feed
+    assert mv.feed_mm_min[3] == pytest.approx(300.0)  # 0.1 mm/rev at 3000 rpm
+    assert p.command_line.tolist() == [4, 6, 7]

@@ -224,8 +224,13 @@ class _Lexer:
                 break
             if ch == "%":
                 rest = s[pos + 1:].strip()
-                if blk.words or blk.assignments or not first or (rest and not rest.startswith(("(", ";"))):
-                    raise self.error(line, "'%' must stand alone on its line")
+                # Mach3 posts number the closing line too ("N890 %"): a block number alone may precede it
+                numbered = bool(blk.words) and all(w.letter == "N" for w in blk.words)
+                if (blk.words and not numbered) or blk.assignments or (not first and not numbered) or (
+                        rest and not rest.startswith(("(", ";"))):
+                    raise self.error(line, "'%' must stand alone on its line (a block number may precede it)")
+                if numbered:
+                    blk.words.clear()
                 blk.percent = True
                 pos += 1
                 first = False

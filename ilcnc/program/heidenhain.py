@@ -797,6 +797,12 @@ class _Lexer:
     def word(self, kind: int, allowed: frozenset[str], mo: _Motion, seen: set[str], s: str, name: str, j: int,
              base: int) -> int:
         bname = _BLOCK_NAMES[kind]
+        if name == "F":  # "F AUTO" / "F MAX" (a space between, as the TNC 640 also writes them)
+            k = _skip_ws(s, j)
+            for tail, word in (("AUTO", "FAUTO"), ("MAX", "FMAX")):
+                if k > j and s.startswith(tail, k) and (k + len(tail) >= len(s) or s[k + len(tail)] in _TERM):
+                    name, j = word, k + len(tail)
+                    break
         cls = _word_class(name)
         if name == "R":
             return self.r_word(kind, allowed, mo, s, j, base)
