@@ -136,6 +136,8 @@ def export(
                                                min_decimals=decimals)
     except IlcncError as exc:
         _fail(exc)
+    if result.note:
+        typer.echo(f"note: {result.note}", err=True)
     typer.echo(f"wrote {result.path} ({result.mode}; {result.changed_commands} commands corrected, "
                f"{result.edits} numbers rewritten)")
 

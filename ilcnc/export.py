@@ -26,6 +26,7 @@ class ExportResult:
     mode: str  # "copy", "rewrite" or "convert"
     changed_commands: int
     edits: int
+    note: str = ""  # e.g. a copy of a program the interpreter does not run in full
 
 
 def output_family(path: Path) -> str:
@@ -84,7 +85,12 @@ def export_program(
     if same:
         if corr is None:
             write_atomic(out, program.data, protect=protect)
-            return ExportResult(out, "copy", 0, 0)
+            note = ""
+            if program.unsupported is not None:  # a copy needs no interpretation; say that it had none
+                line, problem = program.unsupported
+                note = (f"{src}:{line}: the interpreter stops here ({problem}): copied byte for byte without"
+                        " interpreting the rest")
+            return ExportResult(out, "copy", 0, 0, note)
         dec = _min_decimals(program.units, profile_path, min_decimals)
         text, edits = apply_corrections(program, corr, min_decimals=dec)
         write_atomic(out, text.encode("latin-1"), protect=protect)

@@ -229,3 +229,19 @@ def test_a_correction_may_not_move_an_arc_start_off_its_circle(tmp_path: Path) -
     with pytest.raises(CorrectionError, match="off its circle"):
         export_program(src, out, corrections_path=csv)
     assert not out.exists()
+
+
+def test_a_copy_of_a_program_the_interpreter_stops_in_says_so(tmp_path: Path) -> None:
+    """Issue 21 item 3: export copies what it cannot interpret, byte for byte, and says so on stderr."""
+    src = tmp_path / "m98.ngc"
+    src.write_bytes(b"G21 G90\r\nG0 X0 Y0 Z5\r\nM98 P100\r\nG1 X1 F100\r\nM30\r\nO100\r\nG1 Y1\r\nM99\r\n")
+    out = tmp_path / "copy.ngc"
+    res = _cli("export", str(src), "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    assert out.read_bytes() == src.read_bytes()
+    assert "m98.ngc:3:" in res.stderr and "copied byte for byte" in res.stderr
+    # a correction still needs the interpretation: refused with the line
+    csv = tmp_path / "c.csv"
+    csv.write_text("k,dx,dy,dz\n0,0.01,0,0\n")
+    res = _cli("export", str(src), "--out", str(tmp_path / "c.ngc"), "--corrections", str(csv))
+    assert res.returncode == 1 and "m98.ngc:3:" in res.stderr
