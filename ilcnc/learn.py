@@ -57,7 +57,6 @@ from ilcnc.program.model import (
     FLAG_DERIVED,
     FLAG_HOME,
     FLAG_MACHINE,
-    FLAG_PARAMETRIC,
     FLAG_POLAR,
     FLAG_REPEATED,
     MOVE_ARC_CW,
@@ -81,7 +80,8 @@ __all__ = [
 
 
 #: Flags of commands whose end point is never corrected.
-FROZEN_FLAGS = FLAG_REPEATED | FLAG_PARAMETRIC | FLAG_POLAR | FLAG_MACHINE | FLAG_HOME | FLAG_DERIVED
+# (a G-code word with a parameter is corrected as [expression+c]; Klartext Q words are no commands)
+FROZEN_FLAGS = FLAG_REPEATED | FLAG_POLAR | FLAG_MACHINE | FLAG_HOME | FLAG_DERIVED
 
 #: Relative growth of the RMS or max error that the guard counts as "grew"
 #: (plus half the resolution, at least :data:`GROWTH_ABS_MM`): rounding of the

@@ -245,3 +245,30 @@ def test_a_copy_of_a_program_the_interpreter_stops_in_says_so(tmp_path: Path) ->
     csv.write_text("k,dx,dy,dz\n0,0.01,0,0\n")
     res = _cli("export", str(src), "--out", str(tmp_path / "c.ngc"), "--corrections", str(csv))
     assert res.returncode == 1 and "m98.ngc:3:" in res.stderr
+
+
+def test_parametric_coordinates_are_corrected_exactly_in_3d_chips(tmp_path: Path) -> None:
+    """Issue 21 item 2 on LinuxCNC's own 3D_Chips.ngc (4,681 straight feeds written as X[#<xscale>*53.]): every one
+    is a command, a correction c becomes [expression+c], and LinuxCNC's interpreter runs the result to the
+    programmed point plus c (rs274 prints 4 decimals)."""
+    import re as _re
+    import shutil
+
+    src = Path("/usr/share/linuxcnc/ncfiles/3D_Chips.ngc")
+    if not src.exists() or not shutil.which("rs274"):
+        pytest.skip("LinuxCNC's 3D_Chips.ngc and rs274 come with linuxcnc-uspace (not installed here)")
+    prog = read_program(src)
+    assert prog.n_commands == 4681 and prog.unsupported is None
+    corr = np.round(np.random.default_rng(1).uniform(-0.01, 0.01, (prog.n_commands, 3)), 3)
+    csv = tmp_path / "corr.csv"
+    csv.write_text(write_corrections(corr))
+    out = tmp_path / "chips.ngc"
+    export_program(src, out, corrections_path=csv, min_decimals=4)
+    assert "]+0." in out.read_text() or "]-0." in out.read_text()
+    again = read_program(out)
+    assert np.abs(again.command_end_mm - (prog.command_end_mm + corr)).max() < 1e-9
+    res = subprocess.run(["rs274", "-g", str(out)], capture_output=True, text=True, timeout=300)
+    feeds = np.array([[float(v) for v in m.group(1).split(",")[:3]]
+                      for m in _re.finditer(r"STRAIGHT_FEED\(([^)]*)\)", res.stdout)])
+    assert feeds.shape == (4681, 3)
+    assert np.abs(feeds - again.command_end_mm / again.moves.unit_mm[again.command_moves, None]).max() <= 0.5e-4 + 1e-9

@@ -12,6 +12,7 @@ from ilcnc.program import read_program
 from ilcnc.program.gcode import read_gcode
 from ilcnc.program.model import (
     FLAG_MACHINE,
+    FLAG_PARAMETRIC,
     FLAG_REPEATED,
     MOVE_ARC_CCW,
     MOVE_ARC_CW,
@@ -46,7 +47,10 @@ def test_every_sample_reads_and_spans_hold_the_numbers(path: Path) -> None:
         ws, we = mv.word_start[idx, a], mv.word_end[idx, a]
         has = ws >= 0
         for i, s, e in zip(idx[has][:2000], ws[has][:2000], we[has][:2000], strict=True):
-            assert mv.word_style[i, a] & STYLE_LITERAL
+            if not mv.word_style[i, a] & STYLE_LITERAL:
+                # a parameter or an expression (corrected as [expression+c]): the move says so
+                assert mv.flags[i] & FLAG_PARAMETRIC and prog.text[s:e][:1] in "#[-+"
+                continue
             val = float(prog.text[s:e].replace(" ", ""))
             unit = mv.unit_mm[i]
             if mv.word_incremental[i, a]:
@@ -127,7 +131,8 @@ def test_parameters_and_expressions() -> None:
     mv = prog.moves
     assert mv.end_mm[0, :2].tolist() == pytest.approx([7.0, 2.0])
     assert mv.end_mm[1, :2].tolist() == pytest.approx([1.0, 45.0])
-    assert mv.command[0] == -1  # parameter-valued words are not rewritable
+    # parameter-valued words run once: commands, corrected as [expression+c] (issue 21 item 2)
+    assert mv.command[:2].tolist() == [0, 1] and np.all(mv.flags[:2] & FLAG_PARAMETRIC)
 
 
 @pytest.mark.parametrize(

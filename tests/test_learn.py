@@ -316,13 +316,20 @@ def test_too_large_gain_is_caught_by_the_guard() -> None:
     assert res.best == 0 and res.best_record.text == prog.text  # the best program is kept: the original
 
 
-def test_repeated_and_parametric_commands_are_frozen(tmp_path) -> None:
-    text = ("G21 G90\nG0 X0 Y0 Z1\nG1 Z0 F300\n#1=5\nG1 X[#1] Y0\nO100 repeat [2]\nG1 X10 Y5\nG1 X0 Y0\nO100 endrepeat\n"
-            "G1 X3 Y4\nG1 X0 Y0\nM2\n")
+def test_repeated_commands_are_frozen_and_parametric_ones_corrected(tmp_path) -> None:
+    """Lines run more than once are not commands (never corrected); a parameter word runs once and is corrected
+    exactly as [expression+c] (issue 21 item 2; it was frozen)."""
+    text = ("G21 G90\nG0 X0 Y0 Z1\nG1 Z0 F300\n#1=1\n#2=0\nG1 X0.5 Y0 F3000\nG1 X[#1] Y[#2]\nO100 repeat [2]\n"
+            "G1 X1.5 Y0.5\nG1 X1.5 Y1\nO100 endrepeat\nG1 X1 Y1.5\nG1 X0.5 Y1.5\nG1 X0 Y1\nM2\n")
     prog = _program(tmp_path, text)
     prof = _profile("example-mill.yaml", iterations=1)
     res = learn_virtual(prog, prof, stop_on_stall=False)
     u = res.iterations[-1].corrections_mm
     lines = prog.command_line
-    frozen = np.isin(lines, [5, 7, 8])
-    assert res.frozen == int(frozen.sum()) and np.all(u[frozen] == 0.0)
+    assert not np.isin(lines, [9, 10]).any()  # the loop's lines run twice: no commands
+    k = int(np.flatnonzero(lines == 7)[0])
+    assert u[k, 1] != 0.0  # the corner at X[#1] Y[#2] is corrected
+    out = res.iterations[-1].text.splitlines()[6]
+    assert out.startswith("G1 X[#1] Y[[#2]") and out.endswith("]")
+    again = read_program(tmp_path / "again.ngc", data=res.iterations[-1].text.encode())
+    assert np.allclose(again.command_end_mm[k], prog.command_end_mm[k] + u[k], atol=1e-9)

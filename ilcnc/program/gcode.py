@@ -847,7 +847,8 @@ class _Interpreter:
                 raise self.error(line, "G1 with zero feed rate (no F word before)")
             length = math.dist(st.pos, target)
             feed = self._feed_mm_min(length, line, letters)
-            correctable = not machine and not (flags & FLAG_PARAMETRIC) and not has_rotary
+            # a word with a parameter or an expression is corrected as [expression+c] (ilcnc.program.rewrite)
+            correctable = not machine and not has_rotary
             self._add(MOVE_LINE, line, tuple(target), flags=flags, words=axis_words, offset=off, feed=feed,
                       correctable=correctable, insert_at=blk.end_offset, block_time=self._block_time_s())
             return

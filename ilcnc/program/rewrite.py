@@ -153,7 +153,8 @@ def apply_corrections(
     ------
     CorrectionError
         Wrong shape, non-finite corrections, or a change that would have to
-        rewrite a word holding a parameter or an expression.
+        rewrite a Klartext word holding a Q parameter or a formula (a G-code
+        expression or parameter becomes ``[expression+correction]``).
     """
     program.require_complete()
     corr = np.asarray(corrections_mm, dtype=np.float64)
@@ -346,10 +347,24 @@ def _rewrite_move(
                 end[a] = mv.end_mm[i, a] if not inc else start_real[a] + orig_val * unit
                 continue
             if not style & STYLE_LITERAL:
-                raise CorrectionError(
-                    program.path, line,
-                    f"the {_LETTERS[a]} word holds a parameter or an expression and cannot absorb a correction",
-                )
+                if klartext:
+                    raise CorrectionError(
+                        program.path, line,
+                        f"the {_LETTERS[a]} word holds a Q parameter or a formula and cannot absorb a correction",
+                    )
+                # G-code: the expression plus the correction, exact whatever the parameters hold at run time:
+                # X[#<xscale>*53.] -> X[[#<xscale>*53.]+0.0012] (the value the reader evaluated + the change)
+                now = (mv.end_mm[i, a] - mv.start_mm[i, a]) / unit if inc else (mv.end_mm[i, a] - off[a]) / unit
+                delta = new_val - now
+                dec = _exact_decimals(round(delta, max(min_decimals, 0) + 3), min_decimals)
+                d_txt = f"{abs(delta):.{dec}f}"
+                if float(d_txt) == 0.0:
+                    end[a] = mv.end_mm[i, a] if not inc else start_real[a] + now * unit
+                    continue
+                edits.append(Edit(ws, we, f"[{text[ws:we]}{'-' if delta < 0 else '+'}{d_txt}]", line))
+                written = now + (float(d_txt) if delta >= 0 else -float(d_txt))
+                end[a] = start_real[a] + written * unit if inc else written * unit + off[a]
+                continue
             src_dec, style = spelling(text[ws:we])
             dec = max(src_dec, min_decimals)
             s = format_number(new_val, dec, style, klartext=klartext)
