@@ -333,3 +333,24 @@ def test_a_block_number_before_the_closing_percent(tmp_path):
         out = subprocess.run(["rs274", "-g", str(src)], capture_output=True, text=True, timeout=60).stdout
         feeds = [[float(v) for v in m.group(1).split(",")[:3]] for m in _re.finditer(r"STRAIGHT_FEED\(([^)]*)\)", out)]
         assert feeds == p.command_end_mm.tolist()
+
+
+def test_g92_3_restores_the_saved_offsets(tmp_path):
+    """Issue 21: G92.3 was refused. G92 and G52 keep their offsets in #5211..#5213 (#5210 = 1), G92.1 clears both,
+    G92.2 clears the offsets only, G92.3 restores them from the parameters; compared with rs274 where installed."""
+    import re as _re
+    import shutil
+    import subprocess
+
+    src = tmp_path / "g923.ngc"
+    src.write_text("G21 G90\nG0 X10 Y10 Z5\nG92 X0 Y0\nG1 Z-1 F100\nG1 X5\nG92.2\nG1 X20\nG92.3\nG1 X7 Y3\nG92.1\nG1 X1\n"
+                   "G92.3\nG1 X2\nG52 X1\nG92.2\nG92.3\nG1 X3\nM2\n")
+    p = read_program(src)
+    assert p.unsupported is None
+    prog_xy = (p.command_end_mm - p.moves.offset_mm[p.command_moves])[:, :2]
+    assert prog_xy.tolist() == [[0, 0], [5, 0], [20, 10], [7, 3], [1, 13], [2, 13], [3, 13]]
+    assert p.moves.end_mm[-1].tolist() == [4.0, 13.0, -1.0]  # G52 X1 restored by G92.3: 3 + 1
+    if shutil.which("rs274"):
+        out = subprocess.run(["rs274", "-g", str(src)], capture_output=True, text=True, timeout=60).stdout
+        feeds = [[float(v) for v in m.group(1).split(",")[:2]] for m in _re.finditer(r"STRAIGHT_FEED\(([^)]*)\)", out)]
+        assert feeds == prog_xy.tolist()

@@ -103,7 +103,7 @@ _UNSUPPORTED_G = {
     760: "G76 threading cycle",
     840: "G84 tapping cycle", 870: "G87 back boring cycle", 880: "G88 boring cycle", 411: "G41.1 dynamic cutter compensation",
     421: "G42.1 dynamic cutter compensation", 432: "G43.2 additional tool length offset",
-    923: "G92.3 restore of saved offsets", 960: "G96 constant surface speed", 700: "G70 lathe cycle",
+960: "G96 constant surface speed", 700: "G70 lathe cycle",
     710: "G71 lathe cycle", 720: "G72 lathe cycle",
 }
 # Arc tolerances of LinuxCNC's interpreter (boundaries measured with rs274): centre-format arcs may
@@ -507,12 +507,19 @@ class _Interpreter:
                     self.params.numbered[base + i] = st.pos[i] / st.unit
             elif c == 920:
                 self._g92(axis_words, line)
-            elif c in (921, 922):
+                self._save_g92(True)
+            elif c == 921:  # G92.1: offsets and their saved copy (#5210..#5213) to zero
                 st.g92 = [0.0, 0.0, 0.0]
+                self._save_g92(False)
+            elif c == 922:  # G92.2: offsets to zero, the saved copy kept
+                st.g92 = [0.0, 0.0, 0.0]
+            elif c == 923:  # G92.3: the offsets the parameters hold (#5211..#5213, as LinuxCNC restores them)
+                st.g92 = [self.params.numbered.get(5211 + i, 0.0) * st.unit for i in range(3)]
             elif c == 520:
                 for i, w in enumerate(axis_words):
                     if w is not None:
                         st.g92[i] = w.value * st.unit
+                self._save_g92(True)
         prev_motion = st.motion
         if motion_codes:
             st.motion = motion_codes[0]
@@ -729,6 +736,14 @@ class _Interpreter:
                 st.g5x[cs][i] = w.value * st.unit
             else:
                 st.g5x[cs][i] = st.pos[i] - w.value * st.unit - st.g92[i]
+
+    def _save_g92(self, on: bool) -> None:
+        """Keep the G92/G52 offsets in #5210 (on) and #5211..#5213 (program units), as LinuxCNC does."""
+        st = self.st
+        num = self.params.numbered
+        num[5210] = 1.0 if on else 0.0
+        for i in range(3):
+            num[5211 + i] = st.g92[i] / st.unit if on else 0.0
 
     def _g92(self, axis_words: list[Word | None], line: int) -> None:
         st = self.st
