@@ -158,6 +158,13 @@ def _refuse_unconvertible(program: Program, family: str) -> None:
     if unknown.size:
         raise InputError(program.path, int(mv.line[unknown[0]]), "a feed move without a known feed (no F before it):"
                          " the other dialect would refuse it or run it at another speed: not converted")
+    if family == "heidenhain" and len(mv):  # the TNC takes at most 5 digits before the point
+        pts = np.concatenate([mv.end_mm - mv.offset_mm, np.nan_to_num(mv.center_mm - mv.offset_mm)])
+        big = np.flatnonzero(np.any(np.abs(pts / np.concatenate([mv.unit_mm, mv.unit_mm])[:, None]) > 99999.9999,
+                                    axis=1))
+        if big.size:
+            raise InputError(program.path, int(mv.line[big[0] % len(mv)]), "a coordinate beyond 99999.9999, more than"
+                             " a Klartext program holds: not converted")
     comp = np.flatnonzero(mv.flags & FLAG_CUTTER_COMP)
     if comp.size:
         raise InputError(program.path, int(mv.line[comp[0]]), "cutter radius compensation (G41/G42, RL/RR) is not"

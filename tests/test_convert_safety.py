@@ -212,8 +212,11 @@ def _machining(program) -> list[tuple[str, object]]:
         if e.kind == "comment":
             if str(e.value).startswith("converted by ilcnc from"):
                 continue
-            # G-code comments cannot hold parentheses: the writer makes them brackets
+            # G-code comments cannot hold parentheses: the writer makes them brackets; control characters become
+            # spaces; a Klartext line's trailing '~' would continue it
             text = str(e.value).replace("(", "[").replace(")", "]")
+            # (and the writers' rule for what a comment holds: printable ASCII and latin-1 letters)
+            text = "".join(c if " " <= c <= "~" or ord(c) > 160 else " " for c in text).rstrip(" ~")
             out.append(("comment", " ".join(text.split())))
             continue
         out.append((e.kind, e.value))

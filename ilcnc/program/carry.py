@@ -95,6 +95,17 @@ class Carried:
         return sum(map(len, self.before.values())) + sum(map(len, self.after.values())) + len(self.tail)
 
 
+#: Largest spindle speed and tool number both dialects take (the TNC: 5 digits and 4 decimals; tools 0..32767).
+MAX_RPM = 99999.9999
+MAX_TOOL = 32767
+
+
+def _check_range(program: Program, line: int, what: str, value: float, most: float, *, integer: bool = False) -> None:
+    if not (0.0 <= value <= most) or (integer and value != int(value)):
+        raise _refuse(program, line, f"{what} {value:g} is outside what both dialects take (0..{most:g}"
+                                     f"{', whole' if integer else ''})")
+
+
 def _refuse(program: Program, line: int, what: str) -> UnsupportedError:
     return UnsupportedError(program.path, line, f"{what}: not converted (export to the other dialect carries"
                                                 f" only what the target runs the same way)")
@@ -168,11 +179,14 @@ def _gcode_line(program: Program, line: int, s: str) -> tuple[list[Event], list[
     for k, _v in words:
         if k in "ABCUVW":
             raise _refuse(program, line, f"the rotary or parallel axis word {k}")
+    if "S" in letters:
+        _check_range(program, line, "spindle speed S", letters["S"], MAX_RPM)
     if "S" in letters and not tool_change:
         before.append(Event("spindle", letters["S"], line))
     if tool_change:
         if "T" not in letters:
             raise _refuse(program, line, "M6 without a T word on its line")
+        _check_range(program, line, "tool number T", letters["T"], MAX_TOOL, integer=True)
         before.append(Event("tool", letters["T"], line, letters.get("S")))
     for m in ms:
         if m == 6:
@@ -217,6 +231,10 @@ def _klartext_line(program: Program, line: int, s: str) -> tuple[list[Event], li
             raise _refuse(program, line, f"a tool call in the {axis} axis")
         sm = re.search(r"\bS\s*([+]?\d+(?:[.,]\d+)?)", tail)
         rpm = float(sm.group(1).replace(",", ".")) if sm else None
+        if rpm is not None:
+            _check_range(program, line, "spindle speed S", rpm, MAX_RPM)
+        if num is not None:
+            _check_range(program, line, "tool number", float(num), MAX_TOOL, integer=True)
         if re.search(r"\bD[LR]2?\s*[+-]?\s*\d*[.,]?\d*[1-9]", tail):
             raise _refuse(program, line, "a tool call with a length or radius delta (DL / DR)")
         if num is not None:
@@ -294,6 +312,11 @@ def carried_events(program: Program) -> Carried:
     return out
 
 
+def _num(value: float) -> str:
+    """A number as both dialects write it: fixed point, no exponent, at most 4 decimals."""
+    return f"{value:.4f}".rstrip("0").rstrip(".") or "0"
+
+
 def _comment_text(text: str) -> str:
     return "".join(c if " " <= c <= "~" or ord(c) > 160 else " " for c in text).strip()
 
@@ -305,16 +328,17 @@ def gcode_blocks(events: list[Event], dialect: str) -> list[str]:
         if e.kind == "comment":
             out.append("(" + _comment_text(str(e.value)).replace("(", "[").replace(")", "]") + ")")
         elif e.kind == "spindle":
-            out.append(f"S{float(e.value):g}")
+            out.append(f"S{_num(float(e.value))}")
         elif e.kind == "tool":
             n = int(float(e.value))
-            out.append(f"T{n} M6" + (f" S{e.rpm:g}" if e.rpm is not None else ""))
+            out.append(f"T{n} M6" + (f" S{_num(e.rpm)}" if e.rpm is not None else ""))
             out.append(f"G43 H{n}")  # the tool table's length, as a Klartext tool call applies it
         elif e.kind == "m":
             if int(float(e.value)) not in (2, 30):
                 out.append(f"M{int(float(e.value))}")
         elif e.kind == "dwell":
-            out.append(f"G4 X{float(e.value):g}" if dialect == "fanuc" else f"G4 P{float(e.value):g}")
+            secs = _num(float(e.value))
+            out.append(f"G4 X{secs}" if dialect == "fanuc" else f"G4 P{secs}")
     return out
 
 
@@ -325,13 +349,13 @@ def klartext_blocks(events: list[Event]) -> list[str]:
         if e.kind == "comment":
             out.append("; " + _comment_text(str(e.value)).rstrip(" ~"))
         elif e.kind == "spindle":
-            out.append(f"TOOL CALL Z S{float(e.value):g}")
+            out.append(f"TOOL CALL Z S{_num(float(e.value))}")
         elif e.kind == "tool":
-            out.append(f"TOOL CALL {int(float(e.value))} Z" + (f" S{e.rpm:g}" if e.rpm is not None else ""))
+            out.append(f"TOOL CALL {int(float(e.value))} Z" + (f" S{_num(e.rpm)}" if e.rpm is not None else ""))
         elif e.kind == "m":
             if int(float(e.value)) not in (2, 30):
                 out.append(f"M{int(float(e.value))}")
         elif e.kind == "dwell":
             out.append("CYCL DEF 9.0 DWELL TIME")
-            out.append(f"CYCL DEF 9.1 DWELL {float(e.value):g}")
+            out.append(f"CYCL DEF 9.1 DWELL {_num(float(e.value))}")
     return out
