@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ilcnc.errors import UnsupportedError
+from ilcnc.program.comments import split_gcode_comments
 from ilcnc.program.model import FLAG_REPEATED, Program
 
 __all__ = ["Carried", "Event", "carried_events", "gcode_blocks", "klartext_blocks"]
@@ -119,27 +120,11 @@ def _gcode_line(program: Program, line: int, s: str) -> tuple[list[Event], list[
     """(events before the line's motion, after it, whether the line holds a tool change) of one G-code line."""
     before: list[Event] = []
     after: list[Event] = []
-    body: list[str] = []
-    i, n = 0, len(s)
-    while i < n:
-        ch = s[i]
-        if ch == "(":
-            j = s.find(")", i + 1)
-            j = n if j < 0 else j
-            text = s[i + 1:j].strip()
-            if text:
-                before.append(Event("comment", text, line))
-            body.append(" ")
-            i = j + 1
-            continue
-        if ch == ";":
-            text = s[i + 1:].strip()
-            if text:
-                before.append(Event("comment", text, line))
-            break
-        body.append(ch)
-        i += 1
-    code = "".join(body).strip()
+    blanked, texts = split_gcode_comments(s, lenient=True)
+    for text in texts:
+        if text.strip():
+            before.append(Event("comment", text.strip(), line))
+    code = (blanked or "").strip()
     if not code or code.startswith("%"):
         return before, after, False
     if code.startswith("$"):  # a grbl system command ($H homing, $X unlock): kept in sight as a comment

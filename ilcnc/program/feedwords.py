@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ilcnc.program.comments import split_gcode_comments
 from ilcnc.program.model import (
     FLAG_DERIVED,
     FLAG_HOME,
@@ -83,23 +84,7 @@ class FeedLine:
 
 
 def _blank_gcode_comments(s: str) -> str | None:
-    out: list[str] = []
-    i, n = 0, len(s)
-    while i < n:
-        ch = s[i]
-        if ch == "(":
-            j = s.find(")", i + 1)
-            if j < 0:
-                return None
-            out.append(" " * (j + 1 - i))
-            i = j + 1
-            continue
-        if ch == ";":
-            out.append(" " * (n - i))
-            break
-        out.append(ch)
-        i += 1
-    return "".join(out)
+    return split_gcode_comments(s)[0]
 
 
 def _line_span(program: Program, line: int) -> tuple[int, str]:

@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.errors import CorrectionError
+from ilcnc.program.comments import split_gcode_comments
 from ilcnc.program.model import (
     FLAG_CUTTER_COMP,
     FLAG_DERIVED,
@@ -221,23 +222,7 @@ def _line_text(program: Program, line: int) -> tuple[int, str, str]:
 
 def _strip_gcode_comments(s: str) -> str | None:
     """The line without ``( )`` and ``;`` comments (comments replaced by spaces); None if malformed."""
-    out: list[str] = []
-    i, n = 0, len(s)
-    while i < n:
-        ch = s[i]
-        if ch == "(":
-            j = s.find(")", i + 1)
-            if j < 0:
-                return None
-            out.append(" " * (j + 1 - i))
-            i = j + 1
-            continue
-        if ch == ";":
-            out.append(" " * (n - i))
-            break
-        out.append(ch)
-        i += 1
-    return "".join(out)
+    return split_gcode_comments(s)[0]
 
 
 @dataclass(slots=True)
