@@ -138,7 +138,7 @@ def test_parameters_and_expressions() -> None:
 @pytest.mark.parametrize(
     ("text", "line", "needle"),
     [
-        ("G21\nG1 X1 E5 F100\n", 2, "unknown word"),
+        ("G21\nG1 X1 E5 F100\n", 2, "E word with no G70, G76, M66, M67 or M68"),  # as rs274 says
         ("G21\nG1 X1 F100\nG1 X(2\n", 3, "X word without a number"),
         ("G21\nG1 X1 F100 (open\n", 2, "not closed"),
         ("G21\nG1 X F100\n", 2, ""),
@@ -354,3 +354,14 @@ def test_g92_3_restores_the_saved_offsets(tmp_path):
         out = subprocess.run(["rs274", "-g", str(src)], capture_output=True, text=True, timeout=60).stdout
         feeds = [[float(v) for v in m.group(1).split(",")[:2]] for m in _re.finditer(r"STRAIGHT_FEED\(([^)]*)\)", out)]
         assert feeds == prog_xy.tolist()
+
+
+def test_e_words_of_analog_io_are_read(tmp_path):
+    """Issue 21: `M68 E2 Q[#2]` (LinuxCNC's m6demo.ngc) was refused as "unknown word 'E'". E is the analog channel
+    of M66/M67/M68; elsewhere it is refused as rs274 refuses it."""
+    src = tmp_path / "e.ngc"
+    src.write_text("G21\n#2=5\nM68 E2 Q[#2]\nG1 X1 F100\nM66 E0 L0\nG1 Y1\nM2\n")
+    p = read_program(src)
+    assert p.unsupported is None and p.command_end_mm.tolist() == [[1, 0, 0], [1, 1, 0]]
+    with pytest.raises(ProgramError, match="E word with no"):
+        _read("G21\nG1 X1 E5 F100\nM2\n")

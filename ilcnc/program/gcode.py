@@ -59,7 +59,7 @@ from ilcnc.program.model import (
 __all__ = ["Block", "Word", "detect_dialect", "read_gcode", "write_gcode"]
 
 # Letters LinuxCNC accepts as words (O is handled separately, E is not a word).
-_VALID_LETTERS = frozenset("ABCDFGHIJKLMNPQRSTUVWXYZ")
+_VALID_LETTERS = frozenset("ABCDEFGHIJKLMNPQRSTUVWXYZ")  # E: the analog channel of M66/M67/M68 (LinuxCNC)
 _AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
 _CENTER_INDEX = {"I": 0, "J": 1, "K": 2}
 
@@ -317,6 +317,9 @@ class _Lexer:
                 continue
             raise self.error(line, f"unexpected character {ch!r}")
         blk.assignments = pending_assign
+        if "E" in seen and not any(w.letter == "M" and w.value in (66.0, 67.0, 68.0) for w in blk.words):
+            # E is the analog channel of M66/M67/M68 (G70 / G76, LinuxCNC's other users, are not modelled)
+            raise self.error(line, "E word with no G70, G76, M66, M67 or M68 to use it")
         return blk
 
     def _param_key(self, s: str, pos: int, line: int) -> tuple[str | int, int]:
