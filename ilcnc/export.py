@@ -172,9 +172,7 @@ def _refuse_unconvertible(program: Program, family: str) -> None:
     if family == "gcode":
         for i in np.flatnonzero(mv.flags & FLAG_MACHINE):
             line = int(mv.line[i])
-            start = program.line_start(line)
-            end = program.text.find("\n", start)
-            body = program.text[start:end if end >= 0 else len(program.text)].split(";", 1)[0].upper()
+            body = program.line_text(line)[1].split(";", 1)[0].upper()
             if re.search(r"\bM92\b", body):
                 raise InputError(program.path, line, "M92 positions are relative to a datum the machine builder"
                                  " sets; G-code has no equivalent (G53 is machine zero): not converted")

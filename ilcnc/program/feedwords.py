@@ -87,18 +87,8 @@ def _blank_gcode_comments(s: str) -> str | None:
     return split_gcode_comments(s)[0]
 
 
-def _line_span(program: Program, line: int) -> tuple[int, str]:
-    text = program.text
-    start = program.line_start(line)
-    end = text.find("\n", start)
-    content = text[start:] if end < 0 else text[start:end]
-    if content.endswith("\r"):
-        content = content[:-1]
-    return start, content
-
-
 def _gcode_line(program: Program, line: int) -> FeedLine:
-    start, s = _line_span(program, line)
+    start, s, _eol = program.line_text(line)
     body = _blank_gcode_comments(s)
     if body is None:
         return FeedLine(-1, -1, -1, problem="the line has an unclosed comment")
@@ -121,7 +111,7 @@ def _gcode_line(program: Program, line: int) -> FeedLine:
 
 
 def _klartext_line(program: Program, line: int) -> FeedLine:
-    start, s = _line_span(program, line)
+    start, s, _eol = program.line_text(line)
     semi = s.find(";")
     body = s if semi < 0 else s[:semi]
     if body.rstrip(" \t").endswith("~") or _KL_BLOCK.match(body) is None:

@@ -52,8 +52,10 @@ from ilcnc.program.model import (
     MoveTable,
     MoveTableBuilder,
     Program,
+    arc_off_circle,
     decode_source,
     looks_binary,
+    named_axes,
 )
 
 __all__ = ["Block", "Word", "detect_dialect", "read_gcode", "write_gcode"]
@@ -103,17 +105,13 @@ _UNSUPPORTED_G = {
     760: "G76 threading cycle",
     840: "G84 tapping cycle", 870: "G87 back boring cycle", 880: "G88 boring cycle", 411: "G41.1 dynamic cutter compensation",
     421: "G42.1 dynamic cutter compensation", 432: "G43.2 additional tool length offset",
-960: "G96 constant surface speed", 700: "G70 lathe cycle",
+    960: "G96 constant surface speed", 700: "G70 lathe cycle",
     710: "G71 lathe cycle", 720: "G72 lathe cycle",
 }
 # Arc tolerances of LinuxCNC's interpreter (boundaries measured with rs274): centre-format arcs may
-# miss the end radius by 0.02*sqrt(2) mm (mm programs) or 0.001*sqrt(2) inch, R-format arcs may be
-# short of the half chord by 0.00127 mm (0.00005 inch) before they are refused.
+# miss the end radius by 0.02*sqrt(2) mm (mm programs) or 0.001*sqrt(2) inch (model.arc_off_circle), R-format
+# arcs may be short of the half chord by 0.00127 mm (0.00005 inch) before they are refused.
 _RADIUS_TOLERANCE_MM = 0.00127
-
-
-def _center_arc_tolerance_mm(unit_mm: float) -> float:
-    return 0.02 * math.sqrt(2.0) if unit_mm == 1.0 else 0.001 * math.sqrt(2.0) * MM_PER_INCH
 
 
 _CYCLES = frozenset({730, 810, 820, 830, 850, 860, 890})
@@ -1004,8 +1002,7 @@ class _Interpreter:
             r0 = np.hypot(start[:, a1] - center[:, a1], start[:, a2] - center[:, a2])
             r1 = np.hypot(end[:, a1] - center[:, a1], end[:, a2] - center[:, a2])
             with np.errstate(invalid="ignore"):
-                tol = _center_arc_tolerance_mm(unit)
-                bad |= use_c & ((r0 < 1e-9) | ((np.abs(r1 - r0) > tol) & (np.abs(r1 - r0) > 1e-3 * r0)))
+                bad |= use_c & ((r0 < 1e-9) | arc_off_circle(r0, r1, unit))
         if use_r.any():
             r = rvals * unit
             dx = end[:, a1] - start[:, a1]
@@ -1080,7 +1077,7 @@ class _Interpreter:
             if r0 < 1e-9:
                 raise self.error(line, "arc with zero radius (centre at the start point)")
             # LinuxCNC's limits, measured against rs274 (its sample good-arc.small sits at 0.028 mm, 0.11 %)
-            if abs(r1 - r0) > _center_arc_tolerance_mm(st.unit) and abs(r1 - r0) > 1e-3 * r0:
+            if arc_off_circle(r0, r1, st.unit):
                 raise self.error(line, f"arc radius to end ({r1:.4f} mm) differs from radius to start ({r0:.4f} mm)")
         lin = PLANE_AXES[st.plane][2]
         center[lin] = float("nan")
@@ -1384,7 +1381,7 @@ def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: st
     ends = (moves.end_mm - moves.offset_mm) * scale
     starts = (moves.start_mm - moves.offset_mm) * scale
     centers = (moves.center_mm - moves.offset_mm) * scale
-    named = (moves.word_start != -1) | (np.abs(moves.end_mm - moves.start_mm) > 1e-9)
+    named = named_axes(moves)
     offset = (0.0, 0.0, 0.0)
     last: list[str | None] = [None, None, None]
 

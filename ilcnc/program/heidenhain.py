@@ -103,8 +103,10 @@ from ilcnc.program.model import (
     MoveTable,
     MoveTableBuilder,
     Program,
+    arc_off_circle,
     decode_source,
     looks_binary,
+    named_axes,
 )
 
 __all__ = ["read_heidenhain", "write_klartext"]
@@ -2004,7 +2006,7 @@ class _Interp:
         if r0 < 1e-9:
             raise _Stop(line, "circle with zero radius (the centre CC is the start point)")
         off = abs(r1 - r0)
-        if off > 0.02 * math.sqrt(2.0) and off > 1e-3 * r0:
+        if arc_off_circle(r0, r1):  # the mm limit, as before for MM and INCH programs alike
             raise _Stop(line, f"the end point of C is {off:.4f} mm off the circle (radius {r0:.4f} mm at the start,"
                               f" {r1:.4f} mm at the end)")
         if off > ARC_TOLERANCE_MM:
@@ -2671,11 +2673,11 @@ def read_heidenhain(path: Path, data: bytes) -> Program:
                         "executed (block skip off)")
     warnings.extend(interp.warnings)
     unmodelled = None
-    for dline, (num, cname, lines) in interp.cycle_calls.items():
+    if interp.cycle_calls:  # the first cycle called (its first call's line)
+        dline, (num, cname, lines) = next(iter(interp.cycle_calls.items()))
         unmodelled = (lines[0], f"cycle {num} {cname} (defined at line {dline}) moves the tool at its {len(lines)}"
                                 f" call(s); that motion is not modelled, so a run of the program is neither simulated"
                                 " nor learned (the contour around it would be judged without it)")
-        break
     return Program(
         path=path, text=text, dialect="heidenhain", units="inch" if unit_word == "INCH" else "mm", moves=moves,
         name=name, warnings=warnings, unsupported=interp.unsupported, unmodelled=unmodelled,
@@ -2891,6 +2893,7 @@ def write_klartext(moves: MoveTable, *, name: str, units: str = "mm", decimals: 
     from ilcnc.program.carry import Carried, klartext_blocks
 
     carried = events if isinstance(events, Carried) else Carried()
+    named_all = named_axes(moves)
     for i in range(len(moves)):
         blocks.extend(klartext_blocks(carried.before.get(i, [])))
         kind = int(moves.kind[i])
@@ -2902,9 +2905,7 @@ def write_klartext(moves: MoveTable, *, name: str, units: str = "mm", decimals: 
         off = np.zeros(3) if machine else off
         plane = int(moves.plane[i])
         if kind in (MOVE_RAPID, MOVE_LINE):
-            # only the axes the source named or the move changes: an axis never positioned is not invented
-            named = [a for a in range(3)
-                     if moves.word_start[i, a] != -1 or abs(moves.end_mm[i, a] - moves.start_mm[i, a]) > 1e-9]
+            named = [a for a in range(3) if named_all[i, a]]  # an axis never positioned is not invented
             w.straight(kind, end, float(moves.feed_mm_min[i]), named if machine else None, plane,
                        named=None if machine else named)
         else:

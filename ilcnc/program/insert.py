@@ -206,20 +206,6 @@ def _normalise_points(program: Program, points: Mapping[int, Iterable[float]] | 
     return {i: sorted(set(fs)) for i, fs in sorted(out.items())}
 
 
-def _line_text(program: Program, line: int) -> tuple[int, str, str]:
-    """(start offset, content without line ending, line ending) of 1-based ``line``."""
-    text = program.text
-    start = program.line_start(line)
-    end = text.find("\n", start)
-    if end < 0:
-        content, eol = text[start:], ""
-    else:
-        content, eol = text[start:end], "\n"
-    if content.endswith("\r"):
-        content, eol = content[:-1], "\r" + eol
-    return start, content, eol
-
-
 def _strip_gcode_comments(s: str) -> str | None:
     """The line without ``( )`` and ``;`` comments (comments replaced by spaces); None if malformed."""
     return split_gcode_comments(s)[0]
@@ -474,7 +460,7 @@ def _plan_move(program: Program, i: int, fractions: list[float], known: NDArray[
     if not np.all(mv.word_style[i][mv.word_start[i] >= 0] & STYLE_LITERAL):
         return "an end point word is not a plain number"
     line = int(mv.line[i])
-    line_start, content, _eol = _line_text(program, line)
+    line_start, content, _eol = program.line_text(line)
     info = _check_klartext_line(content) if klartext else _check_gcode_line(content)
     if info.problem is not None:
         return info.problem
@@ -781,7 +767,7 @@ def reread(program: Program, text: str) -> Program:
 def inserted_moves(program: Program, marker: str = MARKER) -> NDArray[np.bool_]:
     """Which moves of ``program`` are on lines that :func:`insert_points` inserted (their marker comment), (M,)."""
     lines = np.unique(program.moves.line)
-    marked = [int(ln) for ln in lines.tolist() if ln > 0 and marker in _line_text(program, int(ln))[1]]
+    marked = [int(ln) for ln in lines.tolist() if ln > 0 and marker in program.line_text(int(ln))[1]]
     return np.isin(program.moves.line, marked)
 
 

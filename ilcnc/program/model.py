@@ -23,9 +23,11 @@ file byte for byte. ``-1`` marks an axis without a word in that block.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -67,6 +69,20 @@ PLANE_AXES: dict[int, tuple[int, int, int]] = {PLANE_XY: (0, 1, 2), PLANE_XZ: (2
 
 AXES = "XYZ"
 MM_PER_INCH = 25.4
+
+def center_arc_tolerance_mm(unit_mm: float) -> float:
+    """How far a centre-format arc's end may miss the circle through its start, mm: LinuxCNC's interpreter
+    limit (boundaries measured with rs274), 0.02·√2 mm in mm programs, 0.001·√2 inch in inch ones."""
+    return 0.02 * math.sqrt(2.0) if unit_mm == 1.0 else 0.001 * math.sqrt(2.0) * MM_PER_INCH
+
+
+def arc_off_circle(r_ref_mm: Any, r_other_mm: Any, unit_mm: float = 1.0) -> Any:
+    """True where two radii of one arc (its start's and its end's, mm) differ by more than a control accepts:
+    more than :func:`center_arc_tolerance_mm` and more than 0.1 % of ``r_ref_mm`` (LinuxCNC's rule; the G-code
+    and Klartext readers and the rewriter apply it). Scalars or numpy arrays."""
+    off = np.abs(np.asarray(r_other_mm) - np.asarray(r_ref_mm))
+    return (off > center_arc_tolerance_mm(unit_mm)) & (off > 1e-3 * np.asarray(r_ref_mm))
+
 
 # Path control of a move (MoveTable.blend_tol_mm): how the planner may pass the corner at its end
 #: No setting in the program: the machine profile's ``planner.corner_tolerance_mm`` applies.
@@ -172,6 +188,12 @@ class MoveTable:
 
     def __len__(self) -> int:
         return int(self.kind.shape[0])
+
+
+def named_axes(moves: MoveTable) -> NDArray[np.bool_]:
+    """(M, 3): the axes each move's block names or the move changes. A writer names only these, so an axis the
+    source never positioned is not invented (the machine stays where it is)."""
+    return (moves.word_start != -1) | (np.abs(moves.end_mm - moves.start_mm) > 1e-9)
 
 
 class MoveTableBuilder:
@@ -404,6 +426,19 @@ class Program:
             t = np.frombuffer(self.text.encode("latin-1"), dtype=np.uint8)
             self._line_starts = np.concatenate(([0], np.flatnonzero(t == 10) + 1))
         return int(self._line_starts[line - 1])
+
+    def line_text(self, line: int) -> tuple[int, str, str]:
+        """(start offset, content without line ending, line ending) of 1-based ``line``."""
+        text = self.text
+        start = self.line_start(line)
+        end = text.find("\n", start)
+        if end < 0:
+            content, eol = text[start:], ""
+        else:
+            content, eol = text[start:end], "\n"
+        if content.endswith("\r"):
+            content, eol = content[:-1], "\r" + eol
+        return start, content, eol
 
     def require_complete(self) -> None:
         """Raise :class:`UnsupportedError` if the interpreter stopped at a construct it does not model.

@@ -36,14 +36,13 @@ from ilcnc.program.model import (
     STYLE_PLUS,
     STYLE_TRAILING_DOT,
     Program,
+    arc_off_circle,
 )
 
 __all__ = ["Edit", "apply_corrections", "format_number", "spelling"]
 
 _LETTERS = "XYZ"
 _CENTER_LETTERS = "IJK"
-#: How far a moved arc start may leave its circle, mm (LinuxCNC's limit for mm programs: 0.02·√2).
-ARC_RADIUS_TOLERANCE_MM = 0.02 * math.sqrt(2.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -409,7 +408,7 @@ def _rewrite_center(program: Program, i: int, start_real: NDArray[np.float64], k
     c = mv.center_mm[i]
     r0 = math.hypot(start_real[i0] - c[i0], start_real[i1] - c[i1])
     r1 = math.hypot(mv.end_mm[i, i0] - c[i0], mv.end_mm[i, i1] - c[i1])
-    if abs(r1 - r0) > ARC_RADIUS_TOLERANCE_MM and abs(r1 - r0) > 1e-3 * r1:
+    if arc_off_circle(r1, r0):  # the mm limit, relative to the circle's own radius
         raise CorrectionError(program.path, line, f"the correction before this arc moves its start"
                               f" {abs(r1 - r0):.4f} mm off its circle (radius {r1:.4f} mm): a control refuses such an"
                               " arc; correct the point along the circle")
