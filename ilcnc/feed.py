@@ -33,7 +33,7 @@ grew or whose cycle time left the budget.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -108,7 +108,6 @@ class FeedLaw:
     min_ratio: float
     floor_mm: float
     kappa: float = KAPPA_START
-    history: list[tuple[float, float]] = field(default_factory=list)  # (predicted, measured) extra time, s
 
     def cost_s(self, scale: NDArray[np.float64]) -> float:
         """Predicted extra cycle time of ``scale``, s (with ``κ``)."""
@@ -155,7 +154,6 @@ class FeedLaw:
         pred = feed_cost_s(scale, self.length_mm, self.feed_mm_s, self.time0_s) - feed_cost_s(
             scale_before, self.length_mm, self.feed_mm_s, self.time0_s)
         got = cycle_s - cycle_before_s
-        self.history.append((self.kappa * pred, got))
         if pred > 1e-6 and got > self.kappa * pred:
             self.kappa = min(got / pred, 20.0)
 

@@ -847,7 +847,8 @@ def learn_virtual(
     records = [IterationRecord(first_iteration, dict(sim0.stats), u0, sig0, [], True, 1.0, text0,
                                sim0 if keep_runs else None, tim0, dict(sim0.shares), dict(sim0.air_stats),
                                float(sim0.cycle_time_s), f0)]
-    feed_law = _feed_law(program, profile, last_feed, f0, float(sim0.cycle_time_s)) if f0 is not None else None
+    feed_law, not_adjustable = (_feed_law(program, profile, classes_f, last_feed["time"], f0, float(sim0.cycle_time_s))
+                                if f0 is not None else (None, {}))
     feed_err0 = last_feed.get("err")
     if on_record:
         on_record(records[0])
@@ -855,7 +856,7 @@ def learn_virtual(
     del sim0  # one run held at a time: a large program's run is several GB
     u_hist = [u0]
     s_hist = [sig0]
-    feed_best: dict[str, Any] = {"err": feed_err0}  # per-move errors of the best kept run (feed learning)
+    err_best = feed_err0  # per-move errors of the best kept run (feed learning)
     stall_msg: str | None = None
     best = 0
     scale = 1.0
@@ -882,9 +883,9 @@ def learn_virtual(
         f_best = best_rec_now.feed_scale
         cycle_best = float(best_rec_now.cycle_time_s or 0.0)
         if feed_step:
-            assert feed_law is not None and f_best is not None and feed_best["err"] is not None
+            assert feed_law is not None and f_best is not None and err_best is not None
             u_new, clips = u_hist[-1], []
-            f_new, _level = feed_law.propose(f_best, feed_best["err"], cycle_best)
+            f_new, _level = feed_law.propose(f_best, err_best, cycle_best)
             if np.array_equal(f_new, f_best):
                 it -= 1
                 feed_done = True
@@ -940,7 +941,7 @@ def learn_virtual(
             continue
         prev_rms = records[best].stats["rms"]
         best = len(records) - 1
-        feed_best["err"] = last_feed.get("err")
+        err_best = last_feed.get("err")
         u_hist.append(u_new)
         s_hist.append(sig)
         if stats["max"] <= profile.learning.stop_tolerance_mm:
@@ -973,7 +974,7 @@ def learn_virtual(
         message += f"; the output is iteration {records[best].iteration}"
     feed_out = None
     if feed_law is not None:
-        feed_out = _feed_outcome(program, profile, feed_law, records[best], records[0], feed_err0)
+        feed_out = _feed_outcome(program, profile, feed_law, not_adjustable, records[best], records[0], feed_err0)
     return LearnResult(program, records, status, message, best, frozen, n_air, rule, feed_out)
 
 
@@ -987,20 +988,24 @@ def _grown(what: str, ref: dict[str, float], new: dict[str, float], rec: Iterati
     return f"{what.upper()} {ref[what] * 1e3:.2f} → {new[what] * 1e3:.2f} µm"
 
 
-def _feed_law(program: Program, profile: MachineProfile, last: dict[str, Any], scale0: NDArray[np.float64],
-              cycle_s: float) -> FeedLaw:
-    """The feed law of a run from its first run (:mod:`ilcnc.feed`)."""
+def _feed_law(program: Program, profile: MachineProfile, classes: NDArray[np.int8], time_s: NDArray[np.float64],
+              scale0: NDArray[np.float64], cycle_s: float) -> tuple[FeedLaw, dict[str, int]]:
+    """The feed law of a run from its first run (its per-move times ``time_s`` and cycle time, :mod:`ilcnc.feed`),
+    and the cutting moves whose feed may not change, counted by reason."""
     from ilcnc.program.feedwords import feed_moves
     from ilcnc.program.geometry import move_lengths_mm
 
     sec = profile.learning.refine
     mv = program.moves
-    ok, _refused = feed_moves(program)
-    _rule, classes = profile_move_classes(program, profile)
+    ok, refused = feed_moves(program)
+    not_adjustable: dict[str, int] = {}
+    for i, why in refused:
+        if classes[i] == MOVE_CUT:
+            not_adjustable[why] = not_adjustable.get(why, 0) + 1
     length = move_lengths_mm(mv)  # an arc's along its circle (the planner's time is on the arc)
     feed_mm_s = np.where(np.isfinite(mv.feed_mm_min), mv.feed_mm_min, 0.0) / 60.0
     adjustable = ok & (classes == MOVE_CUT) & (length > 0) & (feed_mm_s > 0)
-    time0 = np.asarray(last["time"], dtype=np.float64).copy()
+    time0 = np.asarray(time_s, dtype=np.float64).copy()
     slowed = scale0 < 1.0
     # a continued run: what its slowed moves took at the programmed feed is not measured; the ideal time stands in
     time0[slowed] = length[slowed] / np.maximum(feed_mm_s[slowed], 1e-12)
@@ -1009,18 +1014,18 @@ def _feed_law(program: Program, profile: MachineProfile, last: dict[str, Any], s
     cycle0 = cycle_s - law.cost_s(scale0)
     law.cycle0_s = cycle0
     law.budget_s = sec.feed_budget_pct / 100.0 * cycle0
-    return law
+    return law, not_adjustable
 
 
-def _feed_outcome(program: Program, profile: MachineProfile, law: FeedLaw, best: IterationRecord,
-                  first: IterationRecord, err0: NDArray[np.float64] | None) -> FeedOutcome:
-    from ilcnc.program.feedwords import feed_moves
+def _feed_outcome(program: Program, profile: MachineProfile, law: FeedLaw, not_adjustable: dict[str, int],
+                  best: IterationRecord, first: IterationRecord, err0: NDArray[np.float64] | None) -> FeedOutcome:
+    from ilcnc.program import read_program
 
     mv = program.moves
     scale = best.feed_scale if best.feed_scale is not None else np.ones(len(mv))
     out_prog_feed = None
-    if np.any(scale < 1.0):  # the feeds as written (rounded to the feed word's decimals): read back
-        _text, prog = program_with_corrections(program, best.corrections_mm, profile, feed_scale=scale)
+    if np.any(scale < 1.0):  # the feeds as written (rounded to the feed word's decimals): the output read back
+        prog = read_program(program.path, default_units=program.units, data=best.text.encode("latin-1"))
         out_prog_feed = prog.moves.feed_mm_min
     slowed = []
     for i in np.flatnonzero(scale < 1.0):
@@ -1030,14 +1035,8 @@ def _feed_outcome(program: Program, profile: MachineProfile, law: FeedLaw, best:
                        "kind": "line" if mv.kind[i] == 1 else "arc",
                        "feed_mm_min": [float(mv.feed_mm_min[i]), written],
                        "error_mm": float(err0[i]) if err0 is not None else float("nan")})
-    _ok, refused = feed_moves(program)
-    _rule, classes = profile_move_classes(program, profile)
-    reasons: dict[str, int] = {}
-    for i, why in refused:
-        if classes[i] == MOVE_CUT:
-            reasons[why] = reasons.get(why, 0) + 1
     return FeedOutcome(slowed, profile.learning.refine.feed_budget_pct,
-                       (float(first.cycle_time_s or 0.0), float(best.cycle_time_s or 0.0)), reasons, law.kappa)
+                       (float(first.cycle_time_s or 0.0), float(best.cycle_time_s or 0.0)), not_adjustable, law.kappa)
 
 
 
