@@ -211,7 +211,7 @@ def _arrays_gb(obj: Any) -> float:
 
 
 def _stage_inspect(program: Path, profile: Path | None) -> dict[str, Any]:
-    from ilcnc.inspect import inspect_program
+    from ilcnc.shop.inspect import inspect_program
 
     inspect_program(WARM_UP, profile_path=profile)
     base = _peak_gb()
@@ -226,9 +226,9 @@ def _stage_inspect(program: Path, profile: Path | None) -> dict[str, Any]:
 
 def _stage_simulate(program: Path, profile: Path) -> dict[str, Any]:
     """What ``ilcnc simulate PROG --profile P`` runs (no ``--out``: the figures only, chunk by chunk)."""
-    from ilcnc.profile import load_profile
+    from ilcnc.profile.schema import load_profile
     from ilcnc.program import read_program
-    from ilcnc.stream import simulate_figures
+    from ilcnc.vcnc.stream import simulate_figures
 
     prof = load_profile(profile)
     simulate_figures(read_program(WARM_UP), prof)
@@ -249,8 +249,8 @@ def _stage_simulate(program: Path, profile: Path) -> dict[str, Any]:
 
 
 def _stage_learn(program: Path, profile: Path) -> dict[str, Any]:
-    from ilcnc.learn import learn_virtual
-    from ilcnc.profile import load_profile
+    from ilcnc.learning.learner import learn_virtual
+    from ilcnc.profile.schema import load_profile
     from ilcnc.program import read_program
 
     prof = load_profile(profile)
@@ -281,7 +281,7 @@ def _cpu_s() -> float:
 
 def _stage_batch(work: Path, profile: Path, parts: int, max_part_s: float, samples: Path) -> dict[str, Any]:
     from ilcnc._threads import available_cores, threads_per_part
-    from ilcnc.batch import BatchJob, jobs_from_path, learn_one, run_batch, write_summary
+    from ilcnc.shop.batch import BatchJob, jobs_from_path, learn_one, run_batch, write_summary
 
     probe_out = work / "probe"
     probe_out.mkdir(parents=True, exist_ok=True)
@@ -529,7 +529,7 @@ def _per(r: dict[str, Any], n: float) -> float:
 
 
 def _servo_period(profile: Path) -> float:
-    from ilcnc.profile import load_profile
+    from ilcnc.profile.schema import load_profile
 
     return load_profile(profile).machine.servo_period_s
 

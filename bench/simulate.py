@@ -17,7 +17,7 @@ In one run it measures:
   process and ``tracemalloc``'s peak of the run, numpy's arrays included);
 * the compiled kernels against the numpy path they replace, on the same
   reference cut to ``--ref-hours`` of motion (default 1 h): the numpy
-  planner (``ilcnc.plan._plan(kernel=False)``), ``lfilter`` per axis
+  planner (``ilcnc.vcnc.plan._plan(kernel=False)``), ``lfilter`` per axis
   (``axis_response``), the numpy contour search (``_USE_KERNEL = False``);
   CPU time of each, the ratio, and whether the results are identical;
 * the friction model of ``configs/seed001-duong-p-ff-friction.yaml`` (numba
@@ -52,14 +52,14 @@ from scipy import signal
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-import ilcnc.contour as contour_mod  # noqa: E402
-import ilcnc.plan as plan_mod  # noqa: E402
-import ilcnc.simulate as sim_mod  # noqa: E402
-from ilcnc.contour import PathGeometry, contour_error  # noqa: E402
-from ilcnc.drives import axis_response, discrete_model, simulate_drives  # noqa: E402
-from ilcnc.plan import PlanLimits, plan_program  # noqa: E402
-from ilcnc.profile import load_profile  # noqa: E402
+import ilcnc.contour.search as contour_mod  # noqa: E402
+import ilcnc.vcnc.plan as plan_mod  # noqa: E402
+import ilcnc.vcnc.simulate as sim_mod  # noqa: E402
+from ilcnc.contour.search import PathGeometry, contour_error  # noqa: E402
+from ilcnc.profile.schema import load_profile  # noqa: E402
 from ilcnc.program import read_program  # noqa: E402
+from ilcnc.vcnc.drives import axis_response, discrete_model, simulate_drives  # noqa: E402
+from ilcnc.vcnc.plan import PlanLimits, plan_program  # noqa: E402
 
 LARGEST = REPO / "samples" / "third_party" / "large" / "stellabee1.ngc"
 WARM_UP = REPO / "samples" / "own" / "star.ngc"
@@ -261,9 +261,9 @@ def main(argv: list[str] | None = None) -> int:
             num, den = [k * w0 * w0], [1.0, 2 * z * w0, w0 * w0, 0.0]
             inp = np.gradient(u, prof.machine.servo_period_s)
         else:
-            from ilcnc.drives import _closed_continuous  # continuous model of the same drive
+            from ilcnc.vcnc.drives import closed_continuous  # continuous model of the same drive
 
-            num, den = _closed_continuous(drive)
+            num, den = closed_continuous(drive)
             inp = u
         _q, _w, c_lsim = _cpu(lambda: signal.lsim((num, den), inp, tt))
     except Exception as exc:

@@ -33,14 +33,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ilcnc.deflection import (  # noqa: E402
+from ilcnc.program import read_program  # noqa: E402
+from ilcnc.vcnc.deflection import (  # noqa: E402
     feed_per_tooth_mm,
     seed004_cutting,
     seed004_tool,
     sle_frequency_domain_mm,
     sle_per_command_mm,
 )
-from ilcnc.program import read_program  # noqa: E402
 
 TARGET_S = 10.0
 CONTOUR = ROOT / "samples" / "third_party" / "contour"

@@ -30,8 +30,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ilcnc.profile import load_profile  # noqa: E402
-from ilcnc.tune import design_time_domain, epsilon_of, tune_profile  # noqa: E402
+from ilcnc.learning.time_design import design_time_domain, epsilon_of  # noqa: E402
+from ilcnc.learning.tune import tune_profile  # noqa: E402
+from ilcnc.profile.schema import load_profile  # noqa: E402
 
 TARGET_S = 5.0
 
@@ -83,8 +84,8 @@ def main() -> int:
           f"{tune_s / TARGET_S:.2f} x target -> {'met' if met else 'NOT MET'}")
 
     if args.lifted:
+        from ilcnc.learning.lifted_check import check_lifted
         from ilcnc.program import read_program
-        from ilcnc.tune import check_lifted
 
         prog = read_program(ROOT / "samples" / "third_party" / "gcode" / "jsdc.gcode")
         p4 = load_profile(ROOT / "configs" / "seed004-ward-sopdt.yaml")
@@ -97,8 +98,8 @@ def main() -> int:
               f" Q {chk.q_filter_hz} Hz, {chk.chosen.status}, norm {chk.chosen.norm:.4f},"
               f" ρ {chk.chosen.spectral_radius:.6f}")
     if args.schedule:
+        from ilcnc.learning.gain_schedule import schedule_gains
         from ilcnc.program import read_program
-        from ilcnc.tune import schedule_gains
 
         prog = read_program(ROOT / "tests" / "data" / "tune" / "seed001-standin-xz.ngc")
         p1 = load_profile(ROOT / "configs" / "seed001-duong-p-ff-friction.yaml")

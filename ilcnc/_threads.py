@@ -1,12 +1,12 @@
 """The one place that decides how many threads ilcnc's own pools may use.
 
-A part's drive stage (the axes side by side, :mod:`ilcnc.drives`) and its
-contour stage (chunks of samples, :func:`ilcnc.contour.contour_error`) run in
+A part's drive stage (the axes side by side, :mod:`ilcnc.vcnc.drives`) and its
+contour stage (chunks of samples, :func:`ilcnc.contour.search.contour_error`) run in
 thread pools; :func:`thread_limit` is the size they take. By default it is the
 number of cores this process may run on (``os.sched_getaffinity``): one part
 alone uses the whole machine.
 
-When several parts run side by side (:func:`ilcnc.batch.run_batch` with
+When several parts run side by side (:func:`ilcnc.shop.batch.run_batch` with
 ``workers`` processes, or a Dask worker with several threads), every part
 running on every core only makes the processes fight over the cores (and
 multi-threaded BLAS spin-waits on a loaded machine). The batch therefore gives

@@ -90,8 +90,7 @@ def inspect(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Dialect, units, lines, G01 commands, extents, path length and cycle time of a program."""
-    from ilcnc import inspect as inspect_mod
-
+    from ilcnc.shop import inspect as inspect_mod
     try:
         report = inspect_mod.inspect_program(program, profile_path=profile, moves_out=moves)
     except IlcncError as exc:
@@ -121,8 +120,7 @@ def export(
     With no corrections and the same dialect the output is byte-identical to the input; with --state, the
     program of an iteration of the run, byte for byte as the run wrote it (refined lines included).
     """
-    from ilcnc import export as export_mod
-
+    from ilcnc.shop import export as export_mod
     try:
         if state is not None:
             if corrections is not None:
@@ -174,10 +172,10 @@ def simulate(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Run PROGRAM on the virtual CNC: planned reference, drive models, contour error."""
-    from ilcnc import simulate as sim_mod
-    from ilcnc.logs import write_axis_log
-    from ilcnc.profile import load_profile
+    from ilcnc.axislog.log import write_axis_log
+    from ilcnc.profile.schema import load_profile
     from ilcnc.program import read_program
+    from ilcnc.vcnc import simulate as sim_mod
 
     if compare is not None:
         bad = [o for o, v in (("--out", out), ("--against", against), ("--schedule", schedule)) if v is not None]
@@ -194,7 +192,7 @@ def simulate(
         console = _console()
         gains = None
         if schedule is not None:
-            from ilcnc.tune import read_schedule
+            from ilcnc.vcnc.schedule import read_schedule
 
             if schedule_axis not in prof.axes:
                 raise InputError(schedule, None, f"--schedule-axis {schedule_axis!r} is not an axis of the profile"
@@ -229,11 +227,11 @@ def _check_log_options(log_format: str, log_units: str) -> None:
 
 def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_units: str, log_columns: str | None,
              log_offset: tuple[float, float, float] | None, as_json: bool) -> None:
-    """``simulate --compare``: the virtual CNC's E(k) against the one measured from a log (:mod:`ilcnc.fidelity`)."""
-    from ilcnc.fidelity import TARGET_CORRELATION, TARGET_DIFFERENCE, fidelity_of_log
-    from ilcnc.logs import read_log
-    from ilcnc.profile import load_profile
+    """``simulate --compare``: the virtual CNC's E(k) against the one measured from a log (:mod:`ilcnc.shop.fidelity`)."""
+    from ilcnc.axislog.detect import read_log
+    from ilcnc.profile.schema import load_profile
     from ilcnc.program import read_program
+    from ilcnc.shop.fidelity import TARGET_CORRELATION, TARGET_DIFFERENCE, fidelity_of_log
 
     _check_log_options(log_format, log_units)
     try:
@@ -274,9 +272,9 @@ def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_
 
 def _simulate(prog, prof, orig, samples: bool, progress=None):
     """A run of the virtual CNC: every sample when they are written (``samples``), else only its figures
-    (chunk by chunk where the profile allows: bounded memory, :mod:`ilcnc.stream`)."""
-    from ilcnc.simulate import simulate_program
-    from ilcnc.stream import simulate_figures
+    (chunk by chunk where the profile allows: bounded memory, :mod:`ilcnc.vcnc.stream`)."""
+    from ilcnc.vcnc.simulate import simulate_program
+    from ilcnc.vcnc.stream import simulate_figures
 
     if samples:
         return simulate_program(prog, prof, against=orig, progress=progress)
@@ -375,7 +373,7 @@ def learn(
     measured log or probe points it makes one learning step and keeps its
     state in --state for the next run on the machine.
     """
-    from ilcnc.workflow import LearnRequest, learn_part
+    from ilcnc.shop.workflow import LearnRequest, learn_part
 
     _check_log_options(log_format, log_units)
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
@@ -469,7 +467,7 @@ def identify(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Fit a drive model to a measured step response; print parameters, confidence intervals and fit quality."""
-    from ilcnc.identify import identify_file
+    from ilcnc.learning.identify import identify_file
 
     for name, value, allowed in (("--model", model, ("sopdt", "mass_damper", "mass_damper_pid", "first_order_delay")),
                                  ("--signal", signal, (None, "velocity", "position")),
@@ -540,7 +538,7 @@ def tune(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Design learning gains and say whether learning converges (per axis: epsilon, peak frequency)."""
-    from ilcnc.tune import tune_profile
+    from ilcnc.learning.tune import tune_profile
 
     if method not in ("auto", "time", "lifted", "schedule"):
         typer.echo(f"error: --method must be auto, time, lifted or schedule, got {method!r}", err=True)
@@ -584,7 +582,7 @@ def check(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Exit 1 when the simulated contour error of PROGRAM's cutting moves exceeds a threshold (a CI regression gate)."""
-    from ilcnc.profile import load_profile
+    from ilcnc.profile.schema import load_profile
     from ilcnc.program import read_program
 
     try:
@@ -632,8 +630,7 @@ def batch(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Learn every part of a folder or manifest; exit 1 if any part failed or regressed."""
-    from ilcnc import batch as batch_mod
-
+    from ilcnc.shop import batch as batch_mod
     try:
         if out.exists() and not out.is_dir():
             raise InputError(out, None, "exists and is not a folder")
@@ -729,9 +726,10 @@ def linuxcnc_run(
     """
     import tempfile
 
-    from ilcnc import linuxcnc as lcnc
-    from ilcnc.logs import commands_from_lines, write_axis_log
+    from ilcnc.axislog.halsampler import commands_from_lines
+    from ilcnc.axislog.log import write_axis_log
     from ilcnc.program import read_program
+    from ilcnc.shop import linuxcnc as lcnc
 
     try:
         prog = read_program(program)

@@ -1,4 +1,4 @@
-"""Cutting moves and air moves (ilcnc.air): the rule, the figures apart, air moves left alone, check gates on cuts."""
+"""Cutting moves and air moves (ilcnc.contour.air): the rule, the figures apart, air moves left alone, check gates on cuts."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import json
 import numpy as np
 from typer.testing import CliRunner
 
-from ilcnc.air import MOVE_AIR, MOVE_CUT, MOVE_NOT_FED, cutting_rule, move_classes, profile_move_classes
 from ilcnc.cli import app
-from ilcnc.learn import learn_virtual
-from ilcnc.profile import load_profile
+from ilcnc.contour.air import MOVE_AIR, MOVE_CUT, MOVE_NOT_FED, cutting_rule, move_classes, profile_move_classes
+from ilcnc.learning.learner import learn_virtual
+from ilcnc.profile.schema import load_profile
 from ilcnc.program import read_program
 from ilcnc.program.model import MOVE_RAPID
 
@@ -128,8 +128,8 @@ def test_the_part_of_a_plunge_above_the_stock_is_air():
     the rapid by 114 µm when the plunge starts, 6.5 mm above the stock, and that lag is gone before the tool
     reaches it. Those samples count with the air moves; the cutting figures are those of the samples whose
     nearest point on the drawing is at or below the stock top (measured: cutting max 31.0 µm, air 114.4 µm)."""
-    from ilcnc.air import air_above_mm
-    from ilcnc.simulate import simulate_program
+    from ilcnc.contour.air import air_above_mm
+    from ilcnc.vcnc.simulate import simulate_program
 
     profile = load_profile(REPO / "configs" / "linuxcnc-sim.yaml")
     prog = read_program(SAMPLES / "gcode" / "tiny_cat_outline.ngc")

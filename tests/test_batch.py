@@ -12,10 +12,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from ilcnc import _threads, batch, contour, drives
-from ilcnc.batch import jobs_from_path, run_batch
+from ilcnc import _threads
 from ilcnc.cli import app
-from ilcnc.profile import load_profile
+from ilcnc.contour import search as contour
+from ilcnc.profile.schema import load_profile
+from ilcnc.shop import batch
+from ilcnc.shop.batch import jobs_from_path, run_batch
+from ilcnc.vcnc import drives
 from tests.conftest import OWN, REPO
 
 SEED004 = REPO / "configs" / "seed004-ward-sopdt.yaml"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from ilcnc.contour import (
+from ilcnc.contour.search import (
     PathGeometry,
     contour_error,
     guess_hints,
@@ -548,7 +548,7 @@ def test_path_parameter_and_points():
 
 
 def _both_paths(monkeypatch, path, pts, hint, **kw):
-    import ilcnc.contour as contour_mod
+    import ilcnc.contour.search as contour_mod
 
     monkeypatch.setattr(contour_mod, "_USE_KERNEL", False)
     ref = contour_error(path, pts, hint, **kw)
@@ -666,7 +666,7 @@ def _lagging_corner(step=0.005, leg=2.0, lag_periods=60.0):
 def test_reach_finds_the_corner_the_segment_window_is_trapped_at(monkeypatch, kernel):
     """Issue 5: the machine lags ~60 short segments; the window of 3 segments and its walk stop at a local
     minimum on the second leg (like seed 000's corner: 0.192 mm instead of 0.109 mm); the reach does not."""
-    import ilcnc.contour as contour_mod
+    import ilcnc.contour.search as contour_mod
 
     monkeypatch.setattr(contour_mod, "_USE_KERNEL", kernel)
     path, ref, act, hint, exact = _lagging_corner()
@@ -685,7 +685,7 @@ def test_reach_finds_the_corner_the_segment_window_is_trapped_at(monkeypatch, ke
 
 def test_reach_range_is_the_path_length_around_the_hint(monkeypatch):
     """The searched range: the window, widened to every segment within L = factor (|r - q| + slack) of path."""
-    import ilcnc.contour as contour_mod
+    import ilcnc.contour.search as contour_mod
 
     # 10 segments of 1 mm, then 10 of 0.1 mm; the sample sits on segment 12 (s = 10.25), 0.05 mm off the path
     v = np.concatenate([np.arange(0.0, 10.0), 10.0 + 0.1 * np.arange(0, 11)])

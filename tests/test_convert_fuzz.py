@@ -18,8 +18,8 @@ import pytest
 from hypothesis import given, note, settings
 
 from ilcnc.errors import IlcncError
-from ilcnc.export import export_program
 from ilcnc.program import read_program
+from ilcnc.shop.export import export_program
 
 from .test_convert_safety import _machining, _same_motion
 from .test_fuzz import (

@@ -171,7 +171,7 @@ def test_klartext_tool_call_to_gcode_applies_the_length_like_the_tnc(tmp_path):
 
 
 def test_a_stamp_survives_conversion(tmp_path):
-    from ilcnc.workflow import find_stamp, stamp_text
+    from ilcnc.shop.workflow import find_stamp, stamp_text
 
     src = tmp_path / "stamped.ngc"
     text = (REPO / "samples" / "compass.ngc").read_text()

@@ -1,4 +1,4 @@
-"""Tool deflection and surface location error (ilcnc.deflection): forces, FRF, SLE, stock and the seed 004 sample."""
+"""Tool deflection and surface location error (ilcnc.vcnc.deflection): forces, FRF, SLE, stock and the seed 004 sample."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.deflection import (
+from ilcnc.errors import MapError
+from ilcnc.program import read_program
+from ilcnc.vcnc.deflection import (
     Cutting,
     MeasuredFRF,
     ModalFRF,
@@ -28,8 +30,6 @@ from ilcnc.deflection import (
     tool_displacement_mm,
     tooth_force_n,
 )
-from ilcnc.errors import MapError
-from ilcnc.program import read_program
 
 OWN = Path(__file__).resolve().parents[1] / "samples" / "own"
 STEPPED = OWN / "seed004_stepped.h"

@@ -1,4 +1,4 @@
-"""Tests of the closed-loop axis models (ilcnc.drives).
+"""Tests of the closed-loop axis models (ilcnc.vcnc.drives).
 
 Each discrete model is checked against an independent computation of the
 continuous system it stands for: scipy's step/lsim on the continuous
@@ -20,8 +20,19 @@ import pytest
 from scipy import signal
 from scipy.linalg import expm
 
-from ilcnc import drives
-from ilcnc.drives import (
+from ilcnc.errors import ProfileError
+from ilcnc.profile.schema import (
+    FirstOrderDelayDrive,
+    MassDamperPidDrive,
+    PFfFrictionDrive,
+    SopdtDrive,
+    TransferFunctionDrive,
+    default_profile,
+    load_profile,
+    profile_from_dict,
+)
+from ilcnc.vcnc import drives
+from ilcnc.vcnc.drives import (
     DiscreteModel,
     DriveModelError,
     axis_response,
@@ -31,17 +42,6 @@ from ilcnc.drives import (
     loop_response,
     path_normals,
     simulate_drives,
-)
-from ilcnc.errors import ProfileError
-from ilcnc.profile import (
-    FirstOrderDelayDrive,
-    MassDamperPidDrive,
-    PFfFrictionDrive,
-    SopdtDrive,
-    TransferFunctionDrive,
-    default_profile,
-    load_profile,
-    profile_from_dict,
 )
 
 T = 1e-3  # servo period used by most tests, s
@@ -394,7 +394,7 @@ def test_axis_sticks_below_breakaway() -> None:
 def test_compiled_kernels_match_their_python_versions() -> None:
     ref = _circle(5.0, 5.0, 0.3)
     fr = dataclasses.replace(PFF, coulomb_n=100.0, static_n=130.0, stribeck_velocity_mm_s=1.0)
-    plants = [drives._pff_plant(fr), drives._loop_plant(SEED003_G1)]
+    plants = [drives.pff_plant(fr), drives._loop_plant(SEED003_G1)]
     dev = ref - ref[0]
     arr = drives._kernel_arrays(plants, T)
     vref = np.diff(dev, axis=0, prepend=dev[:1]) / T
@@ -533,7 +533,7 @@ def test_seed001_profile_reproduces_the_stability_range() -> None:
 
 
 def _phase_margin(drive: PFfFrictionDrive) -> float:
-    p = drives._pff_plant(drive)
+    p = drives.pff_plant(drive)
     pn, pd = drives._discretise(p.a, p.bu, p.c, T).tf()
     f = np.logspace(-1, math.log10(0.499 / T), 20000)
     z = np.exp(-2j * math.pi * f * T)

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.corrections import write_corrections
 from ilcnc.errors import CorrectionError
-from ilcnc.export import export_program
 from ilcnc.program import read_program
+from ilcnc.shop.corrections import write_corrections
+from ilcnc.shop.export import export_program
 
 from .conftest import OWN, REPO, SAMPLES, sample_files
 

@@ -9,9 +9,9 @@ import re
 import numpy as np
 import pytest
 
-from ilcnc.feed import FeedLaw, feed_cost_s, move_errors_mm
-from ilcnc.learn import learn_virtual, program_with_corrections, refine_for_learning
-from ilcnc.profile import load_profile
+from ilcnc.learning.feed import FeedLaw, feed_cost_s, move_errors_mm
+from ilcnc.learning.learner import learn_virtual, program_with_corrections, refine_for_learning
+from ilcnc.profile.schema import load_profile
 from ilcnc.program import read_program
 from ilcnc.program.feedwords import feed_edits, feed_moves
 from ilcnc.program.model import MOVE_RAPID

@@ -1,4 +1,4 @@
-"""Fidelity of the virtual CNC (ilcnc/fidelity.py, ``ilcnc simulate --compare``).
+"""Fidelity of the virtual CNC (ilcnc/shop/fidelity.py, ``ilcnc simulate --compare``).
 
 The "machine" here is the virtual CNC itself, once with the same profile (the prediction must match its own
 log exactly) and once with a drive 44 % slower than the profile says (the error lands on the same commands,
@@ -16,8 +16,8 @@ import pytest
 from typer.testing import CliRunner
 
 from ilcnc.cli import app
-from ilcnc.command_error import CommandSignal
-from ilcnc.fidelity import TARGET_CORRELATION, TARGET_DIFFERENCE, compare_signals
+from ilcnc.shop.fidelity import TARGET_CORRELATION, TARGET_DIFFERENCE, compare_signals
+from ilcnc.vcnc.command_error import CommandSignal
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILE = REPO / "configs" / "linuxcnc-sim.yaml"

@@ -1,7 +1,7 @@
-"""Drive identification from step responses (``ilcnc.identify``).
+"""Drive identification from step responses (``ilcnc.learning.identify``).
 
 Synthetic data come from closed-form continuous-time responses (not from the
-fitter's own model) or from the simulator (:func:`ilcnc.drives.axis_response`)
+fitter's own model) or from the simulator (:func:`ilcnc.vcnc.drives.axis_response`)
 with Gaussian noise from ``numpy.random.RandomState`` (a frozen stream, so the
 seeds give the same noise on every numpy version).
 
@@ -34,9 +34,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.drives import axis_response
 from ilcnc.errors import InputError, ProfileError
-from ilcnc.identify import (
+from ilcnc.learning.identify import (
     GAIN_TOLERANCE,
     PARAMETERS,
     Identification,
@@ -45,7 +44,8 @@ from ilcnc.identify import (
     read_step_csv,
     sopdt_velocity_response,
 )
-from ilcnc.profile import FirstOrderDelayDrive, MassDamperPidDrive, SopdtDrive, load_profile
+from ilcnc.profile.schema import FirstOrderDelayDrive, MassDamperPidDrive, SopdtDrive, load_profile
+from ilcnc.vcnc.drives import axis_response
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data" / "identify"
@@ -275,7 +275,7 @@ def test_sopdt_with_the_profiles_position_loop() -> None:
     prof = load_profile(CONFIGS / "example-mill.yaml")
     data = prof.to_dict()
     data["axes"]["x"]["drive"]["position_gain_1_s"] = 40.0
-    from ilcnc.profile import profile_from_dict
+    from ilcnc.profile.schema import profile_from_dict
 
     prof = profile_from_dict(data)
     drive = SopdtDrive(omega0_rad_s=150.0, zeta=0.9, gain=1.0, delay_s=0.002, position_gain_1_s=40.0)

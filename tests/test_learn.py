@@ -8,11 +8,10 @@ from itertools import pairwise
 import numpy as np
 import pytest
 
-from ilcnc.command_error import path_weighted_error, plane_crossings
-from ilcnc.contour import PathGeometry, contour_error
+from ilcnc.contour.search import PathGeometry, contour_error
 from ilcnc.errors import ProfileError
-from ilcnc.laws import PidAceLaw, PLaw, SecondOrderLaw, first_markov_per_s, make_law
-from ilcnc.learn import (
+from ilcnc.learning.laws import PidAceLaw, PLaw, SecondOrderLaw, first_markov_per_s, make_law
+from ilcnc.learning.learner import (
     UpdateShaper,
     arc_start_constraint,
     clip_corrections,
@@ -21,9 +20,10 @@ from ilcnc.learn import (
     keep_moves_forward,
     learn_virtual,
 )
-from ilcnc.profile import load_profile, profile_from_dict
+from ilcnc.profile.schema import load_profile, profile_from_dict
 from ilcnc.program import read_program
 from ilcnc.program.model import MOVE_RAPID
+from ilcnc.vcnc.command_error import path_weighted_error, plane_crossings
 from tests.conftest import REPO, SAMPLES
 
 CONFIGS = REPO / "configs"
@@ -196,8 +196,8 @@ def test_path_weighted_error_of_a_uniform_offset() -> None:
 
 def test_path_weighted_kernel_matches_its_numpy_form_on_a_cam_program() -> None:
     """The compiled one-pass accumulation gives the numpy bincount form's E(k) (summation order aside)."""
-    from ilcnc import command_error as ce
-    from ilcnc.simulate import simulate_program
+    from ilcnc.vcnc import command_error as ce
+    from ilcnc.vcnc.simulate import simulate_program
 
     prof = load_profile(CONFIGS / "seed004-ward-sopdt.yaml")
     prog = read_program(JSDC)
@@ -287,7 +287,7 @@ def test_cam_program_learned_five_iterations_cuts_rms_by_70_percent(jsdc_run) ->
 
 def test_seed004_gamma_half_with_q_filter_converges_monotonically_until_the_guard_stops_it() -> None:
     # Γ 0.5 with the Q-filter: the cutting RMS falls at every kept update. Since the part of a plunge above the
-    # stock counts with the air moves (ilcnc.air), jsdc's cutting maximum (10.99 µm after one update) sits at
+    # stock counts with the air moves (ilcnc.contour.air), jsdc's cutting maximum (10.99 µm after one update) sits at
     # a corner between long moves that no existing end point shapes (what --refine is for): the second
     # update lowers the RMS 3.06 -> 1.65 µm but raises that maximum to 11.20 µm (+1.9 %, beyond the guard's
     # 0.5 % + 0.05 µm at this profile's 0.1 µm resolution), so the guard refuses it, halves the gain, and

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from ilcnc.axislog.log import read_axis_log, write_axis_log
 from ilcnc.cli import app
-from ilcnc.logs import read_axis_log, write_axis_log
-from ilcnc.state import LearnState
-from ilcnc.workflow import LearnRequest, find_stamp, learn_part, stamp_text, unstamp_text
+from ilcnc.shop.state import LearnState
+from ilcnc.shop.workflow import LearnRequest, find_stamp, learn_part, stamp_text, unstamp_text
 from tests.conftest import REPO, SAMPLES
 
 CONFIGS = REPO / "configs"
@@ -193,8 +193,8 @@ def test_bad_logs_are_refused_with_the_line(tmp_path) -> None:
 
 
 def test_points_step(tmp_path) -> None:
-    from ilcnc.measure import interpolate_along_path
     from ilcnc.program import read_program
+    from ilcnc.shop.measure import interpolate_along_path
 
     prog = read_program(JSDC)
     pts = tmp_path / "probe.csv"
@@ -325,8 +325,8 @@ def test_state_survives_sigkill(tmp_path) -> None:
 
 
 def test_interpolation_along_the_path_is_linear_in_path_length_and_stops_at_cuts(tmp_path) -> None:
-    from ilcnc.measure import interpolate_along_path
     from ilcnc.program import read_program
+    from ilcnc.shop.measure import interpolate_along_path
 
     p = tmp_path / "two_cuts.ngc"
     # cut 1: k = 0..4 along X with uneven steps; a rapid; cut 2: k = 5..7

@@ -1,4 +1,4 @@
-"""The ``lifted`` error estimate (ilcnc.lifted_error): it sees corners, its step lowers the sampled error."""
+"""The ``lifted`` error estimate (ilcnc.vcnc.lifted): it sees corners, its step lowers the sampled error."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import yaml
 
-from ilcnc.command_error import error_kind, reference_command_samples
-from ilcnc.learn import Learner, learn_virtual, refine_for_learning
-from ilcnc.lifted_error import lifted_error
-from ilcnc.profile import load_profile
+from ilcnc.learning.learner import Learner, learn_virtual, refine_for_learning
+from ilcnc.profile.schema import load_profile
 from ilcnc.program import read_program
-from ilcnc.simulate import simulate_program
+from ilcnc.vcnc.command_error import error_kind, reference_command_samples
+from ilcnc.vcnc.lifted import lifted_error
+from ilcnc.vcnc.simulate import simulate_program
 
 from .conftest import OWN, REPO
 
@@ -131,7 +131,7 @@ M2
 def test_plan_is_continuous_in_a_point_that_breaks_a_collinear_chain():
     """A point on a line (refinement puts one there) moved by 2 µm turns the line by 2°: the plan may change by
     that corner's rounding, not jump (it did: the 0.07 mm move before the reversal crawled for 0.26 s more)."""
-    from ilcnc.plan import plan_program
+    from ilcnc.vcnc.plan import plan_program
 
     profile = load_profile(MILL)
     t = []

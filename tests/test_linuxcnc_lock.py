@@ -22,8 +22,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from ilcnc import linuxcnc as lcnc
 from ilcnc.cli import app
+from ilcnc.shop import linuxcnc as lcnc
 from tests.integration._lcnc import SessionLock, busy_reason
 
 REPO = Path(__file__).resolve().parents[1]
@@ -31,7 +31,7 @@ SQUARE = REPO / "samples" / "own" / "square.ngc"
 
 _HOLDER = """
 import sys
-from ilcnc import linuxcnc as lcnc
+from ilcnc.shop import linuxcnc as lcnc
 with lcnc.run_lock(0, sys.argv[1]):
     print("ready", flush=True)
     sys.stdin.read()

@@ -7,17 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ilcnc.axislog.detect import detect_log_format, read_log
+from ilcnc.axislog.log import AxisLog, format_axis_log, read_axis_log, write_axis_log
+from ilcnc.axislog.points import read_points
+from ilcnc.axislog.tncscope import read_tncscope
 from ilcnc.errors import InputError
-from ilcnc.logs import (
-    AxisLog,
-    detect_log_format,
-    format_axis_log,
-    read_axis_log,
-    read_log,
-    read_points,
-    read_tncscope,
-    write_axis_log,
-)
 
 
 def _log(n: int = 1000, z: bool = True) -> AxisLog:

@@ -11,14 +11,14 @@ import pytest
 from typer.testing import CliRunner
 
 from ilcnc.cli import app
-from ilcnc.contour import PathGeometry, contour_error
-from ilcnc.learn import learn_virtual
-from ilcnc.machine_errors import ErrorSources, wall_normals
-from ilcnc.profile import load_profile, profile_from_dict
+from ilcnc.contour.search import PathGeometry, contour_error
+from ilcnc.learning.learner import learn_virtual
+from ilcnc.profile.schema import load_profile, profile_from_dict
 from ilcnc.program import read_program
-from ilcnc.simulate import simulate_program
-from ilcnc.volumetric import load_volumetric
-from ilcnc.workflow import LearnRequest, learn_part
+from ilcnc.shop.workflow import LearnRequest, learn_part
+from ilcnc.vcnc.machine_errors import ErrorSources, wall_normals
+from ilcnc.vcnc.simulate import simulate_program
+from ilcnc.vcnc.volumetric import load_volumetric
 from tests.conftest import REPO, SAMPLES
 
 CONFIGS = REPO / "configs"
@@ -272,7 +272,7 @@ def test_bad_frf_stock_and_probe_files_are_one_line_exit_1(tmp_path) -> None:
 
 
 def test_the_shipped_probe_file_steps_the_circle_and_its_closing_point_counts_for_both_commands(tmp_path) -> None:
-    from ilcnc.state import LearnState
+    from ilcnc.shop.state import LearnState
 
     res = runner.invoke(app, ["learn", str(CIRCLE), "--profile", str(SEED002), "--points",
                               str(OWN / "seed002_circle_probe.csv"), "--state", str(tmp_path / "st"),

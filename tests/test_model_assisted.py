@@ -16,10 +16,10 @@ import pytest
 from typer.testing import CliRunner
 
 from ilcnc.cli import app
-from ilcnc.command_error import CommandSignal
-from ilcnc.learn import Learner, model_assisted_correction
-from ilcnc.profile import load_profile, profile_from_dict
+from ilcnc.learning.learner import Learner, model_assisted_correction
+from ilcnc.profile.schema import load_profile, profile_from_dict
 from ilcnc.program import read_program
+from ilcnc.vcnc.command_error import CommandSignal
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILE = REPO / "configs" / "linuxcnc-sim.yaml"

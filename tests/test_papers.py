@@ -31,14 +31,14 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from ilcnc.command_error import signal_of_simulation
-from ilcnc.drives import discrete_model
 from ilcnc.errors import ProfileError
-from ilcnc.laws import SecondOrderLaw, ccc_error_map, first_markov_per_s, make_law
-from ilcnc.learn import LearnResult, learn_virtual, program_with_corrections
-from ilcnc.profile import MachineProfile, load_profile, profile_from_dict
+from ilcnc.learning.laws import SecondOrderLaw, ccc_error_map, first_markov_per_s, make_law
+from ilcnc.learning.learner import LearnResult, learn_virtual, program_with_corrections
+from ilcnc.profile.schema import MachineProfile, load_profile, profile_from_dict
 from ilcnc.program import Program, read_program
-from ilcnc.simulate import simulate_program
+from ilcnc.vcnc.command_error import signal_of_simulation
+from ilcnc.vcnc.drives import discrete_model
+from ilcnc.vcnc.simulate import simulate_program
 from tests.conftest import REPO
 
 CONFIGS = REPO / "configs"
@@ -100,7 +100,7 @@ def _profile(config: str, *, ccc: bool | None = None, gains: dict[str, object] |
 
 
 def _polyline_distance(q: NDArray[np.float64], vertices: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Exact distance of points (N, 2) to a polyline (independent of :mod:`ilcnc.contour`)."""
+    """Exact distance of points (N, 2) to a polyline (independent of :mod:`ilcnc.contour.search`)."""
     best = np.full(q.shape[0], np.inf)
     for a, b in itertools.pairwise(vertices):
         d = b - a
@@ -139,7 +139,7 @@ def _desired_normals(direction: tuple[float, float]) -> Callable[[NDArray[np.flo
 @contextmanager
 def _desired_direction() -> Iterator[None]:
     """Stand-in for the drives.py patch: the CCC's θ of seed 003's desired 45° line (docstring)."""
-    import ilcnc.drives as drives
+    import ilcnc.vcnc.drives as drives
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(drives, "path_normals", _desired_normals((1.0, 1.0)))
@@ -265,7 +265,7 @@ def test_seed000_tuned_gains_beat_the_paper(corner: Program) -> None:
 
 def test_seed000_tune_gains(corner: Program) -> None:
     """Issue 7's ``tune`` finds the optimum of eq. (28); its gains beat the paper at every one of 3 updates."""
-    tune = pytest.importorskip("ilcnc.tune")
+    tune = pytest.importorskip("ilcnc.learning.tune")
     design = tune.design_time_domain(_s000())
     analytic = _tuned_gains(_s000())
     assert design.lead_samples == 1

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.plan import PlanLimits, check_limits, plan_moves, plan_program
-from ilcnc.profile import load_profile
+from ilcnc.profile.schema import load_profile
 from ilcnc.program import read_program
 from ilcnc.program.gcode import read_gcode
+from ilcnc.vcnc.plan import PlanLimits, check_limits, plan_moves, plan_program
 
 from .conftest import REPO, SAMPLES
 
@@ -126,8 +126,7 @@ def test_cubic_profile_has_continuous_jerk() -> None:
 
 
 def _numpy_plan(moves, limits: PlanLimits, **kw):
-    from ilcnc import plan
-
+    from ilcnc.vcnc import plan
     args = dict(period_s=0.001, mode="seven_phase", corner_tolerance_mm=0.01, jerk_time_constant_s=0.01,
                 in_position_s=plan.IN_POSITION_S, max_passes=12)
     args.update(kw)
@@ -181,8 +180,7 @@ def test_compiled_planner_equals_numpy_path_on_real_programs(name: str) -> None:
 
 def test_position_array_grows_when_replanning_outgrows_its_estimate(monkeypatch: pytest.MonkeyPatch) -> None:
     # the array is sized from the speeds before re-planning; without slack a slower re-plan must grow it
-    from ilcnc import plan
-
+    from ilcnc.vcnc import plan
     moves = _prog("G21 G90\nG0 X0 Y0 Z0\nG1 X5 F3000\nX4\nX5\nX4.5\nY1\nG0 Z5\nG1 Z0 F300\nM2\n").moves
     ref = plan_moves(moves, _limits(), period_s=0.001)
     reserve = plan._reserve
@@ -265,8 +263,7 @@ def test_g64_without_p_blends_at_least_as_much_as_any_p() -> None:
 
 def test_programmed_blends_are_bounded_by_a_quarter_of_the_shorter_move(monkeypatch: pytest.MonkeyPatch) -> None:
     # LinuxCNC's own bound (tcFindBlendTolerance): 0.5 mm legs blend by at most 0.125 mm, with or without P
-    from ilcnc import plan
-
+    from ilcnc.vcnc import plan
     text = "G21 G90\nG0 X0 Y0 Z0\n{mode}\nG1 X0.5 F3000\nY0.5\nM2\n"
     free = plan_moves(_prog(text.format(mode="G64")).moves, _limits(), period_s=0.001)
     assert 0.5 * 0.125 < _corner_deviation(free.pos_mm, x=0.5) <= 0.125 * (1 + 1e-6)
@@ -312,8 +309,7 @@ def _inverse_time_line(n: int) -> str:
 
 @pytest.mark.parametrize("kernel", [True, False])
 def test_inverse_time_blocks_give_one_sample_each_and_no_repeated_last_sample(kernel: bool) -> None:
-    from ilcnc import plan
-
+    from ilcnc.vcnc import plan
     n = 20000  # the durations sum to 20 s plus float noise: one tick more (a repeated last sample) before the fix
     moves = _prog(_inverse_time_line(n)).moves
     lim = PlanLimits(np.full(3, 1e6), np.full(3, 1e6), np.full(3, 1e9), np.full(3, 1e12))
@@ -347,9 +343,9 @@ def test_profile_path_control_is_the_mode_of_moves_the_program_sets_none_for(tmp
     start-up mode), g61 as if with G61; tolerance (the default) keeps corner_tolerance_mm."""
     import re
 
-    from ilcnc.plan import plan_program
-    from ilcnc.profile import load_profile, profile_from_dict
+    from ilcnc.profile.schema import load_profile, profile_from_dict
     from ilcnc.program import read_program
+    from ilcnc.vcnc.plan import plan_program
     from tests.conftest import REPO
 
     square = (REPO / "samples" / "own" / "square.ngc").read_text()

@@ -1,4 +1,4 @@
-"""LinuxCNC 2.9's planner (ilcnc/plan_tp.py, ``planner.profile: linuxcnc``).
+"""LinuxCNC 2.9's planner (ilcnc/vcnc/plan_tp.py, ``planner.profile: linuxcnc``).
 
 The comparison with LinuxCNC's own commanded motion is in tests/integration/test_planner_vs_linuxcnc.py and
 docs/papers.md; here the rules the module implements are checked on small programs whose figures can be
@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.contour import PathGeometry, contour_error, guess_hints
-from ilcnc.plan import plan_chunks, plan_program, planned_duration_s
-from ilcnc.plan_tp import ACC_RATIO_NORMAL, MIN_SEGMENT_CYCLES
-from ilcnc.profile import load_profile
+from ilcnc.contour.search import PathGeometry, contour_error, guess_hints
+from ilcnc.profile.schema import load_profile
 from ilcnc.program import read_program
+from ilcnc.vcnc.plan import plan_chunks, plan_program, planned_duration_s
+from ilcnc.vcnc.plan_tp import ACC_RATIO_NORMAL, MIN_SEGMENT_CYCLES
 from tests.conftest import REPO, SAMPLES
 
 PROFILE = load_profile(REPO / "configs" / "linuxcnc-sim.yaml")  # 100 mm/s, 1000 mm/s² per axis, 1 kHz

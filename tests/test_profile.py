@@ -1,4 +1,4 @@
-"""Tests of the YAML machine profile (ilcnc.profile)."""
+"""Tests of the YAML machine profile (ilcnc.profile.schema)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 from ilcnc.errors import InputError, ProfileError
-from ilcnc.profile import (
+from ilcnc.profile.schema import (
     AXIS_NAMES,
     DRIVE_MODELS,
     SPECS,

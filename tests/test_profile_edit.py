@@ -1,4 +1,4 @@
-"""Editing machine profiles in place (``ilcnc.profile_edit``): comments, order and anchors survive.
+"""Editing machine profiles in place (``ilcnc.profile.edit``): comments, order and anchors survive.
 
 Every test works on copies of the shipped ``configs/*.yaml`` and compares the
 edited text with the original line by line (``difflib``): only the edited
@@ -18,8 +18,8 @@ import pytest
 import yaml
 
 from ilcnc.errors import InputError, ProfileError
-from ilcnc.profile import MassDamperPidDrive, SopdtDrive, load_profile
-from ilcnc.profile_edit import NOTE_PREFIX, REMARK_PREFIX, format_scalar, update_profile, update_text
+from ilcnc.profile.edit import NOTE_PREFIX, REMARK_PREFIX, format_scalar, update_profile, update_text
+from ilcnc.profile.schema import MassDamperPidDrive, SopdtDrive, load_profile
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIGS = sorted((REPO / "configs").glob("*.yaml"))

@@ -12,13 +12,13 @@ import yaml
 from typer.testing import CliRunner
 
 from ilcnc.cli import app
-from ilcnc.contour import PathGeometry, contour_error
-from ilcnc.learn import refine_for_learning
-from ilcnc.plan import plan_program
-from ilcnc.profile import load_profile
+from ilcnc.contour.search import PathGeometry, contour_error
+from ilcnc.learning.learner import refine_for_learning
+from ilcnc.profile.schema import load_profile
 from ilcnc.program import read_program
 from ilcnc.program.insert import MARKER, inserted_moves, split_move_of
-from ilcnc.state import LearnState
+from ilcnc.shop.state import LearnState
+from ilcnc.vcnc.plan import plan_program
 
 from .conftest import OWN, REPO, SAMPLES
 

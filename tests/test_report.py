@@ -1,4 +1,4 @@
-"""Tests of ilcnc.report: files written, tables, command diff, decimation."""
+"""Tests of ilcnc.shop.report: files written, tables, command diff, decimation."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ilcnc.errors import InputError
-from ilcnc.report import (
+from ilcnc.shop.report import (
     CommandDiff,
     ReportRun,
     _auto_magnify,

@@ -13,9 +13,9 @@ import pytest
 import yaml
 
 from ilcnc.errors import InputError
-from ilcnc.profile import default_profile, profile_from_dict
+from ilcnc.profile.schema import default_profile, profile_from_dict
 from ilcnc.program.gcode import read_gcode
-from ilcnc.simulate import simulate_program
+from ilcnc.vcnc.simulate import simulate_program
 
 from .conftest import OWN, REPO
 
@@ -124,7 +124,7 @@ def test_program_beyond_travel_is_refused(tmp_path: Path) -> None:
 
 def test_feed_stats_equal_the_nan_reductions() -> None:
     # one pass for the mask and the statistics: np.nanmax / nanargmax exactly, np.nanmean to a few ulp
-    from ilcnc.simulate import _feed_stats
+    from ilcnc.vcnc.simulate import _feed_stats
 
     rng = np.random.default_rng(3)
     n = 100_003
@@ -143,8 +143,8 @@ def test_feed_stats_equal_the_nan_reductions() -> None:
     none = _feed_stats(move, np.ones(50, bool), dist)
     assert none[1] == {"max": 0.0, "mean": 0.0, "rms": 0.0} and none[2] == -1
     # with move classes: the cutting moves' figures, the air moves' apart, the feed mask over both
-    from ilcnc.air import MOVE_AIR, MOVE_CUT, MOVE_NOT_FED
-    from ilcnc.simulate import FeedStats
+    from ilcnc.contour.air import MOVE_AIR, MOVE_CUT, MOVE_NOT_FED
+    from ilcnc.vcnc.simulate import FeedStats
 
     cls = np.where(rapid, MOVE_NOT_FED, np.where(rng.random(50) < 0.3, MOVE_AIR, MOVE_CUT)).astype(np.int8)
     acc = FeedStats()

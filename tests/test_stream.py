@@ -1,4 +1,4 @@
-"""The virtual CNC chunk by chunk (ilcnc.stream): the numbers of the whole run, bit for bit, in bounded memory.
+"""The virtual CNC chunk by chunk (ilcnc.vcnc.stream): the numbers of the whole run, bit for bit, in bounded memory.
 
 Real CAM programs (jscut's jsdc engraving, cds.ngc with 350 groups of rapids and cuts, a Heidenhain
 program) on the shipped profiles; chunks far smaller than the programs, so that every seam is crossed:
@@ -17,15 +17,15 @@ import pytest
 from typer.testing import CliRunner
 
 from ilcnc.cli import app
-from ilcnc.command_error import signal_of_simulation
-from ilcnc.drives import DriveStream, simulate_drives
-from ilcnc.learn import learn_virtual, program_with_corrections
-from ilcnc.machine_errors import ErrorSources
-from ilcnc.plan import plan_chunks, plan_program, planned_duration_s
-from ilcnc.profile import load_profile
+from ilcnc.learning.learner import learn_virtual, program_with_corrections
+from ilcnc.profile.schema import load_profile
 from ilcnc.program import read_program
-from ilcnc.simulate import simulate_program
-from ilcnc.stream import simulate_streamed, stream_unsupported
+from ilcnc.vcnc.command_error import signal_of_simulation
+from ilcnc.vcnc.drives import DriveStream, simulate_drives
+from ilcnc.vcnc.machine_errors import ErrorSources
+from ilcnc.vcnc.plan import plan_chunks, plan_program, planned_duration_s
+from ilcnc.vcnc.simulate import simulate_program
+from ilcnc.vcnc.stream import simulate_streamed, stream_unsupported
 from tests.conftest import REPO, SAMPLES, shared_param
 
 CONFIGS = REPO / "configs"
@@ -174,7 +174,7 @@ def test_in_position_wait_after_rapids_is_the_profiles() -> None:
     prof = load_profile(CONFIGS / "example-mill.yaml")
     d = prof.to_dict()
     d["planner"]["in_position_s"] = 0.0
-    from ilcnc.profile import profile_from_dict
+    from ilcnc.profile.schema import profile_from_dict
 
     fast = profile_from_dict(d)
     t_wait, t_none = planned_duration_s(prog, prof), planned_duration_s(prog, fast)

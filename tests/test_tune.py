@@ -1,8 +1,8 @@
-"""``ilcnc.tune``: learning gains that provably converge (issue 7, part 2).
+"""``ilcnc.learning.tune``: learning gains that provably converge (issue 7, part 2).
 
 Measured figures are in the comments next to the assertions (2-core development machine).
 
-Stand-in for a patch outside ilcnc/tune.py (docs/papers.md): the seed 000 simulation check runs with
+Stand-in for a patch outside ilcnc/learning/tune.py (docs/papers.md): the seed 000 simulation check runs with
 ``_paper_loop``, without ``keep_moves_forward`` (it limits each 2.5-µm block's correction to half its length,
 1.25 µm).
 """
@@ -19,24 +19,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.drives import simulate_drives
-from ilcnc.learn import learn_virtual
-from ilcnc.plan import plan_program
-from ilcnc.profile import MachineProfile, load_profile, profile_from_dict
+from ilcnc.learning.gain_schedule import ScheduleResult, schedule_gains, seed001_standin_program
+from ilcnc.learning.learner import learn_virtual
+from ilcnc.learning.lifted_check import LiftedCheck, check_lifted, lifted_model
+from ilcnc.learning.time_design import design_time_domain, epsilon_of, frequency_grid
+from ilcnc.learning.tune import TuneReport, tune_profile
+from ilcnc.profile.schema import MachineProfile, load_profile, profile_from_dict
 from ilcnc.program import Program, read_program
-from ilcnc.tune import (
-    LiftedCheck,
-    ScheduleResult,
-    TuneReport,
-    check_lifted,
-    design_time_domain,
-    epsilon_of,
-    frequency_grid,
-    lifted_model,
-    schedule_gains,
-    seed001_standin_program,
-    tune_profile,
-)
+from ilcnc.vcnc.drives import simulate_drives
+from ilcnc.vcnc.plan import plan_program
 from tests.conftest import REPO, SAMPLES
 
 CONFIGS = REPO / "configs"
@@ -160,7 +151,7 @@ def test_no_convergent_gains_says_why(s004: MachineProfile) -> None:
 @contextmanager
 def _paper_loop() -> Iterator[None]:
     """Stand-in for the learn.py patch (module docstring; the contour search now reaches the lag itself)."""
-    import ilcnc.learn as learn
+    import ilcnc.learning.learner as learn
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(learn, "keep_moves_forward", lambda u, vec_mm, prev_k, **kw: u)
@@ -316,7 +307,7 @@ def test_standin_program_is_the_stored_file() -> None:
 
 
 def test_schedule_kernel_is_the_drive_model(s000: MachineProfile) -> None:
-    # with one candidate (ΔK = 0) the schedule kernel is the drive model of ilcnc.drives, friction included
+    # with one candidate (ΔK = 0) the schedule kernel is the drive model of ilcnc.vcnc.drives, friction included
     prog = read_program(STANDIN)
     prof = load_profile(SEED001)
     r = schedule_gains(prog, prof, kp_range=(1.6, 1.6), dk=[0.0], horizon=5)
@@ -462,7 +453,7 @@ def test_the_written_schedule_runs_in_simulate(schedule_report: TuneReport, tmp_
     from typer.testing import CliRunner
 
     from ilcnc.cli import app
-    from ilcnc.tune import read_schedule, schedule_on_samples
+    from ilcnc.vcnc.schedule import read_schedule, schedule_on_samples
 
     r = schedule_report.result
     prof = load_profile(SEED001)

@@ -13,7 +13,7 @@ from scipy.interpolate import RegularGridInterpolator
 from scipy.sparse.linalg import spsolve
 
 from ilcnc.errors import InputError, MapError
-from ilcnc.volumetric import (
+from ilcnc.vcnc.volumetric import (
     SEED002_CIRCLE_CENTRE_MM,
     SEED002_CIRCLE_RADIUS_MM,
     AxisErrorTables,

@@ -52,6 +52,7 @@ from ilcnc.program.model import (
     MoveTable,
     MoveTableBuilder,
     Program,
+    Unmodelled,
     arc_off_circle,
     decode_source,
     looks_binary,
@@ -340,13 +341,6 @@ class _Lexer:
         return value, end
 
 
-class _Unsupported(Exception):
-    def __init__(self, line: int, problem: str) -> None:
-        super().__init__(problem)
-        self.line = line
-        self.problem = problem
-
-
 @dataclass(slots=True)
 class _State:
     unit: float = 1.0
@@ -392,14 +386,14 @@ class _Interpreter:
         self.axis_warned = False
         self.polar_words: tuple[float | None, float | None] = (None, None)
 
-    def error(self, line: int, problem: str) -> _Unsupported:
+    def error(self, line: int, problem: str) -> Unmodelled:
         """A block the interpreter refuses (as LinuxCNC would): stops the interpretation."""
-        return _Unsupported(line, problem)
+        return Unmodelled(line, problem)
 
     def execute(self, blk: Block) -> None:
         self.polar_words = (None, None)
         if blk.o_word is not None and blk.o_word != "program-number":
-            raise _Unsupported(blk.line, f"O-word '{blk.o_word}' (subroutines and control flow) is not modelled")
+            raise Unmodelled(blk.line, f"O-word '{blk.o_word}' (subroutines and control flow) is not modelled")
         if blk.system is not None:
             self.warnings.append(f"line {blk.line}: grbl system command {blk.system!r} ignored")
             return
@@ -426,12 +420,12 @@ class _Interpreter:
         line = blk.line
         for code in gcodes:
             if code in _UNSUPPORTED_G:
-                raise _Unsupported(line, f"{_UNSUPPORTED_G[code]} is not modelled")
+                raise Unmodelled(line, f"{_UNSUPPORTED_G[code]} is not modelled")
         for mc in mcodes:
             if mc in (98, 99):
-                raise _Unsupported(line, f"M{mc} subprogram call/return is not modelled")
+                raise Unmodelled(line, f"M{mc} subprogram call/return is not modelled")
         if "U" in letters or "V" in letters or "W" in letters:
-            raise _Unsupported(line, "U/V/W axes are not modelled")
+            raise Unmodelled(line, "U/V/W axes are not modelled")
         # modal groups: at most one per group
         motion_codes = [c for c in gcodes if c in _MOTION]
         if len(motion_codes) == 2 and 800 in motion_codes:
@@ -458,7 +452,7 @@ class _Interpreter:
             elif c in (170, 180, 190):
                 st.plane = c // 10
             elif c in (171, 181, 191):
-                raise _Unsupported(line, f"G{c / 10:g} UVW plane is not modelled")
+                raise Unmodelled(line, f"G{c / 10:g} UVW plane is not modelled")
             elif c == 200:
                 st.unit = MM_PER_INCH
                 st.units_seen = st.units_seen or "inch"
@@ -584,7 +578,7 @@ class _Interpreter:
         """
         st = self.st
         if st.plane != PLANE_XY:
-            raise _Unsupported(line, f"canned cycle G{code / 10:g} outside plane G17 is not modelled")
+            raise Unmodelled(line, f"canned cycle G{code / 10:g} outside plane G17 is not modelled")
         if st.cycle_r is None:
             raise self.error(line, f"canned cycle G{code / 10:g} without an R word")
         if st.feed <= 0:
@@ -722,9 +716,9 @@ class _Interpreter:
             raise self.error(line, "G10 without an L word")
         lval = round(lw.value)
         if lval not in (2, 20):
-            raise _Unsupported(line, f"G10 L{lval} (tool table) is not modelled")
+            raise Unmodelled(line, f"G10 L{lval} (tool table) is not modelled")
         if "R" in letters and abs(letters["R"].value) > 0:
-            raise _Unsupported(line, "G10 with R (rotated coordinate system) is not modelled")
+            raise Unmodelled(line, "G10 with R (rotated coordinate system) is not modelled")
         p = round(pw.value) if pw is not None else 0
         if p < 0 or p > 9:
             raise self.error(line, f"G10 P{p} out of range 0..9")
@@ -839,7 +833,7 @@ class _Interpreter:
             return length_mm * st.feed
         if st.feed_mode == 950:
             if st.spindle <= 0:
-                raise _Unsupported(line, "feed per revolution (G95) without a spindle speed")
+                raise Unmodelled(line, "feed per revolution (G95) without a spindle speed")
             return st.feed * st.unit * st.spindle
         return st.feed * st.unit
 
@@ -1136,7 +1130,7 @@ def _general(lexer: _Lexer, interp: _Interpreter, lines: _Lines, line_start: np.
     blk = lexer.lex(s, int(line_start[i]), i + 1)
     try:
         interp.execute(blk)
-    except _Unsupported as exc:
+    except Unmodelled as exc:
         lexer.lenient = True
         return False, (exc.line, exc.problem)
     if interp.ended:
@@ -1315,7 +1309,7 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
             continue
         try:
             interp.execute(blk)
-        except _Unsupported as exc:
+        except Unmodelled as exc:
             unsupported = (exc.line, exc.problem)
             running = False
             lexer.lenient = True

@@ -14,16 +14,34 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 
 from ilcnc.errors import ProgramError
 from ilcnc.program.expr import ExprError, ExprValueError, read_value
-from ilcnc.program.model import FLAG_REPEATED
+from ilcnc.program.model import FLAG_REPEATED, Unmodelled
 
-if TYPE_CHECKING:
-    from ilcnc.program.gcode import _Interpreter, _Lexer
+
+class BlockLexer(Protocol):
+    """What control flow needs of the G-code lexer (:mod:`ilcnc.program.gcode`)."""
+
+    path: Path
+    params: Any
+    lenient: bool
+
+    def lex(self, s: str, base: int, line: int) -> Any: ...
+
+
+class BlockInterpreter(Protocol):
+    """What control flow needs of the G-code interpreter (:mod:`ilcnc.program.gcode`)."""
+
+    st: Any
+    builder: Any
+    ended: bool
+
+    def execute(self, blk: Any) -> None: ...
 
 __all__ = ["MAX_EXECUTED_LINES", "has_control_flow", "run_control_flow"]
 
@@ -127,8 +145,8 @@ def _scan(path: object, lines: list[str]) -> _Structure:
 
 
 def run_control_flow(
-    lexer: _Lexer,
-    interp: _Interpreter,
+    lexer: BlockLexer,
+    interp: BlockInterpreter,
     lines: list[str],
     line_start: np.ndarray,
 ) -> tuple[int, str] | None:
@@ -137,8 +155,6 @@ def run_control_flow(
     Lines that are never executed (bodies of skipped branches, subroutines
     never called, text after the program end) are still lexed for syntax.
     """
-    from ilcnc.program.gcode import _Unsupported
-
     path = lexer.path
     struct = _scan(path, lines)
     params = lexer.params
@@ -164,7 +180,7 @@ def run_control_flow(
             )
             if key in states:
                 o = struct.olines[loop_line]
-                raise _Unsupported(loop_line + 1, f"o{o.label} {o.keyword} loops forever: it comes back to a state "
+                raise Unmodelled(loop_line + 1, f"o{o.label} {o.keyword} loops forever: it comes back to a state "
                                                   "it was in before (no parameter or position changed)")
             states.add(key)
         return target
@@ -174,7 +190,7 @@ def run_control_flow(
         try:
             return read_value(text, pos, params)
         except ExprValueError as exc:
-            raise _Unsupported(line, str(exc)) from None
+            raise Unmodelled(line, str(exc)) from None
         except ExprError as exc:
             raise ProgramError(path, line, str(exc)) from None
         except RecursionError:
@@ -202,7 +218,7 @@ def run_control_flow(
         while pc < n:
             steps += 1
             if steps > MAX_EXECUTED_LINES:
-                raise _Unsupported(pc + 1, f"program executes more than {MAX_EXECUTED_LINES} lines (endless loop?)")
+                raise Unmodelled(pc + 1, f"program executes more than {MAX_EXECUTED_LINES} lines (endless loop?)")
             i = pc
             line = i + 1
             pc += 1
@@ -228,12 +244,12 @@ def run_control_flow(
             elif kw == "call":
                 target = struct.subs.get(o.label)
                 if target is None:
-                    raise _Unsupported(line, f"o{o.label} call: subroutine not defined in this file (files are not searched)")
+                    raise Unmodelled(line, f"o{o.label} call: subroutine not defined in this file (files are not searched)")
                 vals = args(o.rest, line)
                 if len(vals) > 30:
                     raise ProgramError(path, line, "more than 30 call arguments")
                 if len(frames) > 200:
-                    raise _Unsupported(line, "subroutine calls nested deeper than 200")
+                    raise Unmodelled(line, "subroutine calls nested deeper than 200")
                 frames.append(_Frame(pc, o.label, dict(params.numbered), dict(params.named)))
                 for k in range(1, 31):
                     params.numbered[k] = vals[k - 1] if k <= len(vals) else 0.0
@@ -298,7 +314,7 @@ def run_control_flow(
                     cnt = value(o.rest.strip(), line)
                     body = struct.partner[i] - i
                     if not cnt * body < MAX_EXECUTED_LINES:
-                        raise _Unsupported(line, f"o{o.label} repeat [{cnt:g}] would run more than "
+                        raise Unmodelled(line, f"o{o.label} repeat [{cnt:g}] would run more than "
                                                  f"{MAX_EXECUTED_LINES} lines: not modelled")
                     loop = _Loop(o.label, "repeat", i, round(cnt))
                     loops.append(loop)
@@ -323,7 +339,7 @@ def run_control_flow(
                     pc = loop.start if loop.kind == "while" else close
             else:  # pragma: no cover - the regex admits only the keywords above
                 raise ProgramError(path, line, f"unknown O-word keyword {kw}")
-    except _Unsupported as exc:
+    except Unmodelled as exc:
         unsupported = (exc.line, exc.problem)
     lexer.lenient = True
     # lex every line never executed, for syntax errors
@@ -365,7 +381,7 @@ def _next_branch(struct: _Structure, branches: list[int], lines: list[str], para
     return branches[-1] + 1  # pragma: no cover
 
 
-def _mark_repeated(interp: _Interpreter, executed: np.ndarray) -> None:
+def _mark_repeated(interp: BlockInterpreter, executed: np.ndarray) -> None:
     """Flag moves of lines run more than once and renumber the commands."""
     b = interp.builder
     b._flush()

@@ -144,7 +144,7 @@ class MoveTable:
         ``planner.corner_tolerance_mm`` applies), 0 (:data:`BLEND_EXACT_PATH`, ``G61``),
         -1 (:data:`BLEND_EXACT_STOP`, ``G61.1``), +inf (:data:`BLEND_NO_BOUND`, ``G64`` without P),
         else the largest deviation from the corner (``G64 P``, Klartext cycle 32 ``T``), in mm.
-        How :mod:`ilcnc.plan` applies it: its module docstring, section "Path control".
+        How :mod:`ilcnc.vcnc.plan` applies it: its module docstring, section "Path control".
     block_time_s : float64 (M,)
         Time the program gives the block, s: ``60 / F`` under inverse-time feed (``G93``), NaN
         where the feed is a speed and for rapids. A block of zero length still lasts that long.
@@ -518,3 +518,16 @@ def looks_binary(data: bytes) -> bool:
 def path_of(p: str | Path) -> Path:
     """Normalise a path argument."""
     return Path(p)
+
+
+class Unmodelled(Exception):
+    """A reader met a construct it recognises but does not model (``line``, 1-based; ``problem``).
+
+    Raised inside a reader and caught by it: the program is still read in full for
+    its text, and :attr:`Program.unmodelled` names the first such line.
+    """
+
+    def __init__(self, line: int, problem: str) -> None:
+        super().__init__(problem)
+        self.line = line
+        self.problem = problem

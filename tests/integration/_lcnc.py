@@ -20,8 +20,8 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from ilcnc import linuxcnc as lcnc
 from ilcnc.cli import app
+from ilcnc.shop import linuxcnc as lcnc
 
 REPO = Path(__file__).resolve().parents[2]
 PROFILE = REPO / "configs" / "linuxcnc-sim.yaml"

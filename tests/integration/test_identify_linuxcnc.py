@@ -1,4 +1,4 @@
-"""Identify the drive of LinuxCNC's simulation from a step it records (``ilcnc.identify`` on a real controller).
+"""Identify the drive of LinuxCNC's simulation from a step it records (``ilcnc.learning.identify`` on a real controller).
 
 ``configs/linuxcnc-sim`` closes a P position loop (``[ILCNC] KV`` = 30 1/s)
 around a first-order velocity drive (τ = 5 ms) in HAL. A G1 move in X at
@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc import linuxcnc as lcnc
-from ilcnc.drives import axis_response
-from ilcnc.identify import identify_file, identify_step
-from ilcnc.profile import FirstOrderDelayDrive, load_profile
+from ilcnc.learning.identify import identify_file, identify_step
+from ilcnc.profile.schema import FirstOrderDelayDrive, load_profile
+from ilcnc.shop import linuxcnc as lcnc
+from ilcnc.vcnc.drives import axis_response
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = REPO / "configs" / "linuxcnc-sim"

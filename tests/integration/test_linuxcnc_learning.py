@@ -15,9 +15,9 @@ import shutil
 import pytest
 
 from ilcnc.cli import app
-from ilcnc.learn import best_stats, grew
-from ilcnc.profile import load_profile
-from ilcnc.state import LearnState
+from ilcnc.learning.learner import best_stats, grew
+from ilcnc.profile.schema import load_profile
+from ilcnc.shop.state import LearnState
 from tests.integration._lcnc import PROFILE, REPO, cli_json, needs_linuxcnc, runner
 
 pytestmark = needs_linuxcnc()
@@ -53,7 +53,7 @@ def test_four_iterations_on_linuxcnc_reduce_the_contour_error(loop) -> None:
     its = loop["last"]["iterations"]
     measured = [it for it in its[:5] if it["contour_error_mm"]]
     assert len(measured) == 5
-    # the guard judges the cutting moves (ilcnc.air): an iteration is kept exactly when neither their max nor
+    # the guard judges the cutting moves (ilcnc.contour.air): an iteration is kept exactly when neither their max nor
     # their RMS grew past the best kept before it. jsdc's cutting max sits where LinuxCNC blends a slot's last
     # cut into its G1 retract (~340 µm at Z -0.6, the tool rising early): no end point shapes it and it moves a
     # few % from run to run, so an iteration may be refused there (measured 2026-12-01: 355.4 -> 343.3 ->
@@ -75,7 +75,7 @@ def test_four_iterations_on_linuxcnc_reduce_the_contour_error(loop) -> None:
 
 def test_fidelity_of_the_virtual_cnc_on_the_blended_cam_program(loop) -> None:
     # `simulate --compare` on LinuxCNC's run of the original. jsdc runs in plain G64 (blended), which
-    # configs/linuxcnc-sim.yaml plans as LinuxCNC does (planner.profile linuxcnc, ilcnc/plan_tp.py). Measured
+    # configs/linuxcnc-sim.yaml plans as LinuxCNC does (planner.profile linuxcnc, ilcnc/vcnc/plan_tp.py). Measured
     # 2026-11-23: correlation 0.986, difference 14 % of the error, sample RMS 41.6 µm measured / 40.1 µm
     # predicted (with ilcnc's filter planner: 0.865, 42 %, 38.5 µm): issue 9's targets (0.9, 20 %) are met.
     f = cli_json("simulate", loop["part"], "--profile", PROFILE, "--compare", loop["logs"][0])["fidelity"]

@@ -1,7 +1,7 @@
 """Controller in the loop: part programs run on LinuxCNC's own motion controller (headless simulation).
 
 The tests marked ``linuxcnc`` launch the configuration in ``configs/linuxcnc-sim``
-through :func:`ilcnc.linuxcnc.run_program` (about 3-7 s per launch; LinuxCNC is a
+through :func:`ilcnc.shop.linuxcnc.run_program` (about 3-7 s per launch; LinuxCNC is a
 single instance per machine, so runs are serialised by a lock and must not be
 spread over parallel workers). They are skipped, with the reason, when
 LinuxCNC is not installed. The other tests (halsampler reading, time scaling
@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc import linuxcnc as lcnc
+from ilcnc.axislog.halsampler import commands_from_lines, read_halsampler
 from ilcnc.errors import InputError
-from ilcnc.logs import commands_from_lines, read_halsampler
 from ilcnc.program import read_program
+from ilcnc.shop import linuxcnc as lcnc
 
 REPO = Path(__file__).resolve().parents[2]
 SQUARE = REPO / "samples" / "own" / "square.ngc"

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.contour import PathGeometry, contour_error, guess_hints
-from ilcnc.plan import PlanLimits, plan_moves
+from ilcnc.contour.search import PathGeometry, contour_error, guess_hints
 from ilcnc.program import read_program
+from ilcnc.vcnc.plan import PlanLimits, plan_moves
 from tests.conftest import REPO, SAMPLES
 
 pytestmark = [
@@ -40,7 +40,7 @@ def _motion_time_s(p: np.ndarray) -> float:
 
 
 def _compare(src: Path, tol: float, tmp_path: Path, mode: str = "seven_phase") -> tuple[float, float]:
-    from ilcnc.linuxcnc import run_program
+    from ilcnc.shop.linuxcnc import run_program
 
     prog = read_program(src)
     lc = run_program(src, log_path=tmp_path / "run.log", time_scale=8).log.ref_mm
@@ -76,7 +76,7 @@ def test_real_cam_contour(tmp_path: Path) -> None:
     assert abs(dt) < 0.10  # measured +3.5 %
 
 
-# planner.profile linuxcnc (ilcnc/plan_tp.py): LinuxCNC's own planning rules. Measured 2026-11-23 against
+# planner.profile linuxcnc (ilcnc/vcnc/plan_tp.py): LinuxCNC's own planning rules. Measured 2026-11-23 against
 # the logs of the same programs: the square's blend arcs within 1.3 µm of LinuxCNC's and 1.1 % faster;
 # jsdc in plain G64 0.4 % faster (the filter planner: 1.3 % slower; 1.0 % since 2026-12-01) and its per-command
 # error predicted with correlation 0.986 (docs/papers.md, "Real controller")

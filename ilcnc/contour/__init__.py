@@ -1,0 +1,21 @@
+"""The programmed path and the exact contour error of positions against it; which moves cut and which are in the
+air.
+
+Public names are imported on first use (:mod:`ilcnc._lazy`); ilcnc's own modules import from the module
+that owns a name.
+"""
+
+from ilcnc._lazy import lazy_exports
+
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    'air': (
+        'CuttingRule', 'MOVE_AIR', 'MOVE_CUT', 'MOVE_NOT_FED', 'air_above_mm', 'air_command_mask', 'air_commands',
+        'cutting_rule', 'cutting_samples', 'move_classes', 'profile_cutting_rule', 'profile_move_classes'
+    ),
+    'search': (
+        'CommandError', 'ContourError', 'DEFAULT_CHUNK', 'DEFAULT_WINDOW', 'PathGeometry', 'REACH_FACTOR',
+        'contour_error', 'guess_hints', 'per_command_error', 'sample_command', 'summary', 'tangent_error'
+    ),
+}
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -1,0 +1,37 @@
+"""Learning: the laws that turn ``E(k)`` into corrections, the learning loop on the virtual CNC, refinement and
+the feed, tuning the gains, and identifying drive models from step responses.
+
+Public names are imported on first use (:mod:`ilcnc._lazy`); ilcnc's own modules import from the module
+that owns a name.
+"""
+
+from ilcnc._lazy import lazy_exports
+
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    'feed': ('FeedLaw', 'feed_cost_s', 'move_errors_mm', 'move_times_s'),
+    'gain_schedule': ('DEFAULT_DK', 'ScheduleResult', 'schedule_gains', 'seed001_standin_program'),
+    'identify': (
+        'GAIN_TOLERANCE', 'Identification', 'MODELS', 'PARAMETERS', 'SIGNALS', 'UNITS', 'identify_file',
+        'identify_step', 'read_step_csv', 'sopdt_velocity_response'
+    ),
+    'laws': (
+        'AXES', 'LAWS', 'LearningLaw', 'PLaw', 'PidAceLaw', 'SecondOrderLaw', 'ccc_error_map', 'cut_runs',
+        'first_markov_per_s', 'make_law'
+    ),
+    'learner': (
+        'Clip', 'IterationRecord', 'LearnResult', 'Learner', 'UpdateShaper', 'clip_corrections',
+        'correctable_commands', 'keep_arcs_valid', 'keep_moves_forward', 'learn_virtual', 'program_with_corrections'
+    ),
+    'lifted_check': (
+        'DEFAULT_GAMMAS', 'DEFAULT_MAX_COMMANDS', 'DEFAULT_Q_FILTERS_HZ', 'LiftedCandidate', 'LiftedCheck',
+        'LiftedModel', 'check_lifted', 'lifted_model'
+    ),
+    'refine': ('RefinePlan', 'RefineSite', 'plan_refinement', 'refine_threshold_mm'),
+    'time_design': (
+        'AxisDesign', 'DEFAULT_F_MAX_HZ', 'EpsilonCurve', 'LeadOption', 'TuneResult', 'design_time_domain',
+        'epsilon_of', 'frequency_grid', 'learning_response'
+    ),
+    'tune': ('METHODS', 'TuneReport', 'tune_profile'),
+}
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -1,0 +1,27 @@
+"""The shop workflow around the learning: measured logs and points checked against the program, the learning
+state on disk, batches, LinuxCNC runs, reports, export and inspection.
+
+Public names are imported on first use (:mod:`ilcnc._lazy`); ilcnc's own modules import from the module
+that owns a name.
+"""
+
+from ilcnc._lazy import lazy_exports
+
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    'batch': ('BatchJob', 'PartResult', 'jobs_from_path', 'run_batch', 'summary_csv'),
+    'corrections': ('read_corrections', 'write_corrections'),
+    'export': ('ExportResult', 'export_program', 'output_family'),
+    'fidelity': ('Fidelity', 'TARGET_CORRELATION', 'TARGET_DIFFERENCE', 'compare_signals', 'fidelity_of_log'),
+    'inspect': ('InspectReport', 'command_table_csv', 'inspect_program', 'print_report'),
+    'linuxcnc': (
+        'DEFAULT_CONFIG_DIR', 'DEFAULT_LOCK_TIMEOUT_S', 'LinuxCNCBusyError', 'LockHolder', 'MAX_TIME_SCALE',
+        'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'read_ini', 'run_lock', 'run_program',
+        'scale_program_time', 'scaled_ini_text'
+    ),
+    'measure': ('Measurement', 'interpolate_along_path', 'measure_log', 'measure_points'),
+    'report': ('CommandDiff', 'MAX_PLOT_POINTS', 'ReportRun', 'write_report'),
+    'state': ('IterationEntry', 'LearnState', 'STATE_FILE', 'sha256_bytes', 'sha256_file'),
+    'workflow': ('LearnOutcome', 'LearnRequest', 'find_stamp', 'learn_part', 'stamp_text', 'unstamp_text'),
+}
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

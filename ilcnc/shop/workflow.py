@@ -1,0 +1,781 @@
+"""``ilcnc learn`` as a shop runs it: virtual learning, one step from a machine log or probe points, the state.
+
+Two ways to learn a part:
+
+* **on the virtual CNC** (no measurement given): :func:`ilcnc.learning.learner.learn_virtual`
+  runs all iterations; every iteration's program, corrections and errors go
+  into the state directory (default ``OUT.state/`` beside the output) as they
+  are made;
+* **on the machine** (``--log`` or ``--points``, ``--state`` required): one
+  step per call. The first call starts the state with the original program
+  (the log is a run of it); each call measures the program the state says
+  the machine ran last, checks the measurement belongs to it
+  (:mod:`ilcnc.shop.measure`), applies the guard and writes the next program.
+
+Correcting twice is the classic failure of G-code rewriters: a program that
+is an output of a learning run (its hash is in the state, or it carries the
+``--stamp`` provenance comment) is refused as the start of a new run; given
+with the ``--state`` of its run it continues that run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import shutil
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ilcnc.errors import LogError, StateError
+from ilcnc.fileio import read_bytes, write_atomic
+from ilcnc.learning.learner import (
+    Clip,
+    IterationRecord,
+    Learner,
+    best_stats,
+    grew,
+    learn_virtual,
+    model_assisted_correction,
+    program_with_corrections,
+    refine_for_learning,
+    refine_from_errors,
+    require_learnable,
+)
+from ilcnc.profile.schema import MachineProfile, load_profile
+from ilcnc.program import read_program
+from ilcnc.program.model import Program
+from ilcnc.shop.measure import path_position_mm
+from ilcnc.shop.state import IterationEntry, LearnState, sha256_bytes
+from ilcnc.vcnc.command_error import CommandSignal, error_kind
+
+__all__ = ["LearnOutcome", "LearnRequest", "find_stamp", "learn_part", "stamp_text", "unstamp_text"]
+
+_STAMP = re.compile(r"ilcnc: learned from (?P<name>\S+) sha256:(?P<sha>[0-9a-f]{16}) iteration (?P<it>\d+)")
+
+
+def find_stamp(text: str) -> dict[str, Any] | None:
+    """The provenance stamp of an ilcnc output in a program text (first 50 lines), or None."""
+    for i, line in enumerate(text.splitlines()[:50], start=1):
+        m = _STAMP.search(line)
+        if m:
+            return {"name": m["name"], "sha": m["sha"], "iteration": int(m["it"]), "line": i}
+    return None
+
+
+def stamp_text(text: str, dialect: str, *, name: str, sha256: str, iteration: int) -> str:
+    """Add the provenance comment to a program without moving any line.
+
+    G-code: ``(ilcnc: learned from NAME sha256:… iteration N)`` at the end of
+    the first line that is not ``%``; Klartext: ``; ilcnc: …`` at the end of
+    the ``BEGIN PGM`` line. Line numbers stay the same, so logs and reports
+    of the stamped program still match the original's lines.
+    """
+    note = f"ilcnc: learned from {name.replace(' ', '_')} sha256:{sha256[:16]} iteration {iteration}"
+    lines = text.split("\n")
+    for i, line in enumerate(lines):
+        body = line.rstrip("\r")
+        if not body.strip() or body.strip() == "%":
+            continue
+        eol = line[len(body):]
+        if dialect == "heidenhain":
+            lines[i] = f"{body} ; {note}{eol}"
+        elif _has_semicolon_comment(body):
+            lines[i] = f"{body} {note}{eol}"
+        else:
+            lines[i] = f"{body} ({note}){eol}"
+        break
+    return "\n".join(lines)
+
+
+def _has_semicolon_comment(body: str) -> bool:
+    """True when the line ends in a ``;`` comment (a ``;`` outside parentheses; one inside ``( )`` is comment text)."""
+    depth = 0
+    for ch in body:
+        if ch == "(":
+            depth += 1
+        elif ch == ")":
+            depth = max(depth - 1, 0)
+        elif ch == ";" and depth == 0:
+            return True
+    return False
+
+
+def unstamp_text(text: str) -> str:
+    """The program text without the provenance stamp :func:`stamp_text` added (unchanged if it has none)."""
+    st = find_stamp(text)
+    if st is None:
+        return text
+    lines = text.split("\n")
+    i = st["line"] - 1
+    m = _STAMP.search(lines[i])
+    assert m is not None
+    note = m.group(0)
+    for added in (f" ({note})", f" ; {note}", f" {note}"):
+        if added in lines[i]:
+            lines[i] = lines[i].replace(added, "", 1)
+            break
+    return "\n".join(lines)
+
+
+@dataclass(slots=True)
+class LearnRequest:
+    """What ``ilcnc learn`` was asked to do (paths as given)."""
+
+    program: Path
+    profile: Path
+    out: Path
+    iterations: int | None = None
+    log: Path | None = None
+    points: Path | None = None
+    state: Path | None = None
+    report: Path | None = None
+    stamp: bool = False
+    log_format: str = "auto"
+    log_units: str = "mm"
+    log_period_s: float | None = None
+    points_reach_mm: float | None = None
+    log_columns: str | None = None
+    log_offset: tuple[float, float, float] | None = None
+    force: bool = False
+    cutting_below_z_mm: float | None = None
+    refine: bool = False
+    relearn: bool = False
+
+
+@dataclass(slots=True)
+class LearnOutcome:
+    """The result of one ``ilcnc learn`` call (printed, or ``--json``)."""
+
+    mode: str
+    program: Path
+    output: Path | None
+    state_dir: Path
+    iterations: list[dict[str, Any]]
+    status: str
+    message: str
+    clips: list[Clip] = field(default_factory=list)
+    frozen: int = 0
+    notes: list[str] = field(default_factory=list)
+    report_files: list[Path] = field(default_factory=list)
+    reduction_rms: float = 0.0
+    air_commands: int = 0
+    cutting_rule: str = ""
+    cutting: dict[str, Any] | None = None
+    refined: dict[str, Any] | None = None
+    feed: dict[str, Any] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "program": str(self.program),
+            "output": str(self.output) if self.output is not None else None,
+            "mode": self.mode,
+            "state": str(self.state_dir),
+            "iterations": self.iterations,
+            "status": self.status,
+            "message": self.message,
+            "clipped": [{"k": c.k, "line": c.line, "axis": c.axis, "wanted_mm": c.wanted_mm, "applied_mm": c.applied_mm}
+                        for c in self.clips],
+            "frozen_commands": self.frozen,
+            "air_commands": self.air_commands,
+            "cutting_rule": self.cutting,
+            "refined": self.refined,
+            "feed": self.feed,
+            "notes": self.notes,
+        }
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def _out_suffix_matches(program: Program, out: Path) -> None:
+    from ilcnc.errors import InputError
+    from ilcnc.program import GCODE_SUFFIXES, HEIDENHAIN_SUFFIXES
+
+    suf = out.suffix.lower()
+    klartext = program.dialect == "heidenhain"
+    if (suf in HEIDENHAIN_SUFFIXES and not klartext) or (suf in GCODE_SUFFIXES and klartext):
+        raise InputError(out, None, f"--out {out.name} is a {'Klartext' if suf in HEIDENHAIN_SUFFIXES else 'G-code'} file"
+                         f" but {program.path.name} is {'Klartext' if klartext else 'G-code'}: learn in the program's"
+                         " own dialect, then convert with ilcnc export")
+    if suf not in GCODE_SUFFIXES + HEIDENHAIN_SUFFIXES:
+        raise InputError(out, None, f"unknown program suffix {out.suffix!r} for --out")
+
+
+def _default_state_dir(out: Path) -> Path:
+    return out.with_name(out.name + ".state")
+
+
+def _new_state(directory: Path, program: Program, data: bytes, profile: MachineProfile, profile_sha: str, *,
+               refined: bool = False) -> LearnState:
+    if directory.exists() and not directory.is_dir():
+        raise StateError(directory, None, "exists and is not a directory")
+    if not directory.parent.is_dir():
+        raise StateError(directory, None, f"parent directory {directory.parent} does not exist")
+    directory.mkdir(exist_ok=True)
+    if any(directory.iterdir()):
+        raise StateError(directory, None, "is not empty and holds no learning state: choose a new --state directory")
+    suffix = program.path.suffix or ".nc"
+    st = LearnState(directory, {"name": program.path.name, "sha256": sha256_bytes(data), "file": f"original{suffix}",
+                                "dialect": program.dialect, "units": program.units, "commands": program.n_commands,
+                                "suffix": suffix},
+                    profile.learning.law, error_kind(profile, refined=refined), profile_sha)
+    st.write_file(st.part["file"], data)
+    return st
+
+
+def _resolve_part(req: LearnRequest, data: bytes, state: LearnState | None) -> tuple[str, IterationEntry | None]:
+    """How PROG relates to the state: ``original``, ``output`` (with its entry) or ``new``; refuse mismatches."""
+    sha = sha256_bytes(data)
+    text = data.decode("latin-1")
+    stamp = find_stamp(text)
+    if state is not None:
+        if sha == state.part["sha256"]:
+            return "original", None
+        # an output is recognised by its hash, with or without the stamp it was written with
+        for h in (sha, sha256_bytes(unstamp_text(text).encode("latin-1"))):
+            entry = state.find_program(h)
+            if entry is not None:
+                return "output", entry
+        raise StateError(req.state, None, f"this learning state belongs to {state.part['name']} (sha256"
+                         f" {state.part['sha256'][:16]}), not to {req.program.name}: use the state of this part or a new"
+                         " --state directory")
+    if req.relearn:
+        return "new", None
+    if stamp is not None:
+        raise StateError(req.program, stamp["line"], f"is iteration {stamp['iteration']} of an ilcnc learning run on"
+                         f" {stamp['name']} (provenance stamp): correcting it again would correct twice; learn the"
+                         " original program, continue that run with its --state directory, or --relearn")
+    # an unstamped output: recognised by its hash in the state a run keeps beside it (OUT.state)
+    sibling = _default_state_dir(req.program)
+    if LearnState.exists(sibling):
+        try:
+            earlier = LearnState.load(sibling)
+        except StateError:
+            return "new", None  # a damaged state beside it is not this program's record
+        for h in (sha, sha256_bytes(unstamp_text(text).encode("latin-1"))):
+            entry = earlier.find_program(h)
+            if entry is not None and entry.iteration > 0:
+                raise StateError(req.program, None, f"is iteration {entry.iteration} of the learning run in {sibling}"
+                                 f" on {earlier.part['name']}: learning it again would correct it twice; learn"
+                                 f" {earlier.part['name']}, continue that run with --state {sibling}, or --relearn")
+    return "new", None
+
+
+def _write_output(req: LearnRequest, text: str, program: Program, part_sha: str, iteration: int) -> Path:
+    if req.stamp:
+        text = stamp_text(text, program.dialect, name=program.path.name, sha256=part_sha, iteration=iteration)
+    protect: tuple[Path, ...] = (req.program, req.profile, *(p for p in (req.log, req.points) if p is not None))
+    return write_atomic(req.out, text.encode("latin-1"), protect=protect)
+
+
+def _entry_json(e: IterationEntry) -> dict[str, Any]:
+    out = {"iteration": e.iteration, "contour_error_mm": e.stats, "clipped": e.clipped, "kept": e.kept,
+           "gain_scale": e.gain_scale, "program": e.program, "measured_from": (e.measured_from or {}).get("kind")}
+    shares = (e.measured_from or {}).get("error_shares_mm")
+    if shares:
+        out["error_shares_mm"] = shares
+    for key in ("air_error_mm", "cycle_time_s"):
+        value = (e.measured_from or {}).get(key)
+        if value is not None:
+            out[key] = value
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# virtual learning
+# ---------------------------------------------------------------------------------------------
+
+
+def _record_writer(state: LearnState, program: Program) -> Callable[[IterationRecord], None]:
+    suffix = state.part.get("suffix", ".nc")
+
+    def write(rec: IterationRecord) -> None:
+        it = rec.iteration
+        existing = [e for e in state.iterations if e.iteration == it]
+        name = f"iter-{it:03d}{suffix}"
+        raw = rec.text.encode("latin-1")
+        if existing:  # a continued run re-measures its starting program: same file, new measurement
+            entry = existing[0]
+        else:
+            sha = state.write_file(name, raw)
+            entry = IterationEntry(it, name, sha, state.write_corrections(it, rec.corrections_mm))
+            state.iterations.append(entry)
+        sig = rec.signal
+        if sig is not None:
+            entry.errors = state.write_errors(it, sig.e_mm, sig.t_s, sig.valid)
+        entry.stats = dict(rec.stats)
+        entry.kept = rec.kept
+        entry.gain_scale = rec.gain_scale
+        entry.clipped = len(rec.clipped)
+        entry.measured_from = {"kind": "virtual", "path": None, "sha256": None}
+        if rec.shares:
+            entry.measured_from["error_shares_mm"] = rec.shares
+        if rec.air_stats is not None:
+            entry.measured_from["air_error_mm"] = rec.air_stats
+        if rec.cycle_time_s is not None:
+            entry.measured_from["cycle_time_s"] = rec.cycle_time_s
+        state.gain_scale = min(state.gain_scale, rec.gain_scale)
+        state.save()
+
+    return write
+
+
+def _virtual(req: LearnRequest, profile: MachineProfile, profile_sha: str, data: bytes, state: LearnState | None,
+             relation: str, progress: Callable[[int, int, str], None] | None) -> LearnOutcome:
+    state_dir = req.state or _default_state_dir(req.out)
+    if state is None and LearnState.exists(state_dir):
+        if not req.force:
+            raise StateError(state_dir, None, f"already holds a learning run: continue it with --state {state_dir},"
+                             " replace it with --force, or choose another --out / --state")
+        with _replacing(state_dir, req, data):
+            return _virtual_run(req, profile, profile_sha, data, None, relation, progress, state_dir)
+    return _virtual_run(req, profile, profile_sha, data, state, relation, progress, state_dir)
+
+
+@contextlib.contextmanager
+def _replacing(state_dir: Path, req: LearnRequest, data: bytes) -> Iterator[None]:
+    """``--force``: set the earlier run's state aside, drop it once the new run is written, restore it on failure
+    (``data``: the bytes of ``req.program``)."""
+    root = state_dir.resolve()
+    for p in (req.program, req.profile):
+        if root == p.resolve() or root in p.resolve().parents:
+            raise StateError(p, None, f"is inside the state {state_dir} that --force would replace: copy it out first")
+    try:
+        earlier = LearnState.load(state_dir)
+    except StateError:
+        earlier = None  # a damaged state is replaced like any other
+    if earlier is not None:
+        text = data.decode("latin-1")
+        for h in (sha256_bytes(data), sha256_bytes(unstamp_text(text).encode("latin-1"))):
+            if h != earlier.part["sha256"] and earlier.find_program(h) is not None:
+                raise StateError(req.program, None, f"is an output of the run in {state_dir}: --force would correct it"
+                                 " twice; learn the original program")
+    aside = state_dir.with_name(f".{state_dir.name}.replaced-{os.getpid()}")
+    os.replace(state_dir, aside)
+    try:
+        yield
+    except BaseException:
+        shutil.rmtree(state_dir, ignore_errors=True)
+        os.replace(aside, state_dir)
+        raise
+    shutil.rmtree(aside, ignore_errors=True)
+
+
+def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, data: bytes, state: LearnState | None,
+                 relation: str, progress: Callable[[int, int, str], None] | None, state_dir: Path) -> LearnOutcome:
+    notes: list[str] = []
+    refine = req.refine or profile.learning.refine.enabled == "on"
+    if state is not None:
+        where = req.program if relation == "original" else state.file(state.part["file"])
+        original = read_program(where, default_units=profile.machine.units, data=state.read_original_bytes())
+        if req.refine and not state.part.get("refined"):
+            raise StateError(state.directory, None, "holds a run without refinement: --refine refines at the start of"
+                             " a run (the refined program is its learning index); start a new run with --force")
+        _out_suffix_matches(original, req.out)
+        best = state.best()
+        u0 = state.read_corrections(best) if best is not None else None
+        first = best.iteration if best is not None else 0
+    else:
+        original = read_program(req.program, default_units=profile.machine.units, data=data)
+        _out_suffix_matches(original, req.out)  # before refining: a refusal costs no run
+        require_learnable(original)  # before the state: a refusal leaves nothing behind
+        refinement = refine_for_learning(original, profile) if refine else None  # before the state: a refusal makes none
+        state = _new_state(state_dir, original, data, profile, profile_sha,
+                           refined=refinement is not None and refinement.inserted.n_inserted > 0)
+        if refinement is not None:
+            _store_refinement(state, refinement)
+            notes.extend(refinement.notes())
+        u0, first = None, 0
+    # what the reader read but does not model (rotary words, dwells, cycles, ...): in sight, not only in inspect
+    notes[:0] = [f"reader: {w}" for w in original.warnings[:5]]
+    learning = _learning_program(state, original, profile)
+    writer = _record_writer(state, learning)
+    f0 = None
+    if profile.learning.refine.feed == "on" and u0 is not None:
+        f0 = _stored_feed_scale(state, learning)
+    result = learn_virtual(learning, profile, iterations=req.iterations, keep_runs=req.report is not None,
+                           initial_corrections_mm=u0, first_iteration=first, progress=progress, on_record=writer,
+                           error=state.error, initial_feed_scale=f0)
+    if result.feed is not None:
+        notes.extend(result.feed.notes())
+    best_rec = result.best_record
+    out = _write_output(req, best_rec.text, original, state.part["sha256"], best_rec.iteration)
+    for e in state.iterations:
+        if e.iteration == best_rec.iteration:
+            e.output = str(req.out)
+    state.status = result.status
+    state.save()
+    rule = result.cutting
+    outcome = LearnOutcome("virtual", req.program, out, state.directory, [r.to_json() for r in result.iterations],
+                           result.status, result.message, result.clips, result.frozen, notes,
+                           reduction_rms=result.reduction("rms"), air_commands=result.air_commands,
+                           cutting_rule="" if rule is None else rule.describe(),
+                           cutting=None if rule is None else rule.to_json(), refined=state.part.get("refined"))
+    outcome.feed = None if result.feed is None else result.feed.to_json()
+    if req.report is not None:
+        outcome.report_files = _report_virtual(req, learning, result, best_rec)
+    return outcome
+
+
+def _stored_feed_scale(state: LearnState, learning: Program) -> NDArray[np.float64]:
+    """The feed factor of every move of the state's best program (``learning.refine.feed``: the feeds it wrote),
+    against the learning program's; 1 where a move runs as programmed."""
+    best = state.best()
+    assert best is not None
+    prog = read_program(learning.path, default_units=learning.units, data=state.read_program_bytes(best))
+    a, b = learning.moves.feed_mm_min, prog.moves.feed_mm_min
+    if a.shape != b.shape:
+        raise StateError(state.file(best.program), None, "damaged state file: its moves are not the learning"
+                         " program's")
+    ok = np.isfinite(a) & np.isfinite(b) & (a > 0)
+    return np.where(ok & (b < a), b / np.where(ok, a, 1.0), 1.0)
+
+
+def _refine_from_log(req: LearnRequest, profile: MachineProfile, original: Program) -> tuple[Any, Any]:
+    """The first measured step of a refined run: refine where the log of the original program erred (no extra
+    machine run), and that log read as a run of the refined program."""
+    from ilcnc.axislog.detect import read_log
+    from ilcnc.shop.measure import log_on_refined, measure_log
+
+    assert req.log is not None
+    period = req.log_period_s if req.log_period_s is not None else profile.machine.servo_period_s
+    log = read_log(req.log, fmt=req.log_format, period_s=period, units=req.log_units, columns=req.log_columns,
+                   offset=req.log_offset)
+    meas = measure_log(log, original, original, profile, error_kind(profile), source=req.log, units=req.log_units)
+    assert meas.seg is not None and meas.u is not None and meas.contour_mm is not None and meas.feed_mask is not None
+    dist = np.where(meas.feed_mask, meas.contour_mm, np.nan)
+    refinement = refine_from_errors(original, profile, dist_mm=dist, seg=meas.seg, u=meas.u, first_stats=meas.stats)
+    if refinement.inserted.n_inserted == 0:
+        return refinement, log
+    return refinement, log_on_refined(log, original, refinement.program, refinement.inserted)
+
+
+def _store_refinement(state: LearnState, refinement: Any) -> None:
+    """Keep the refined program in the state: it is the learning index of every iteration of the run."""
+    if refinement.inserted.n_inserted == 0:
+        state.part["refined"] = {"file": None, **refinement.to_json()}
+        return
+    name = f"refined{state.part['suffix']}"
+    sha = state.write_file(name, refinement.program.text.encode("latin-1"))
+    state.part["refined"] = {"file": name, "sha256": sha, "commands": refinement.program.n_commands,
+                             **refinement.to_json()}
+
+
+def _learning_program(state: LearnState, original: Program, profile: MachineProfile) -> Program:
+    """The program whose commands the run learns: the refined one when the run was refined, else the original."""
+    ref = state.part.get("refined")
+    if not ref or not ref.get("file"):
+        return original
+    data = read_bytes(state.file(ref["file"]))
+    if sha256_bytes(data) != ref["sha256"]:
+        raise StateError(state.file(ref["file"]), None, "changed since ilcnc wrote it (hash mismatch): the learning"
+                         " state is damaged")
+    return read_program(original.path, default_units=original.units, data=data)
+
+
+def _report_virtual(req: LearnRequest, original: Program, result: Any, best_rec: IterationRecord) -> list[Path]:
+    from ilcnc.shop.report import ReportRun, write_report
+
+    runs = []
+    for r in result.iterations:
+        sim = r.run
+        runs.append(ReportRun(iteration=r.iteration, kept=r.kept, stats_mm=dict(r.stats), clipped=len(r.clipped),
+                              gain_scale=r.gain_scale, actual_mm=None if sim is None else sim.actual_mm,
+                              contour_mm=None if sim is None else sim.error.dist_mm,
+                              signed_mm=None if sim is None else sim.error.signed_mm,
+                              path_pos_mm=None if sim is None else path_position_mm(sim.error),
+                              feed_mask=None if sim is None else sim.feed_mask,
+                              foot_mm=None if sim is None else sim.error.foot_mm))
+    clipped = np.zeros(original.n_commands, bool)
+    for c in result.clips:
+        clipped[c.k] = True
+    files = write_report(req.report, program_name=original.path.name, path_mm=_path_polyline(original), runs=runs,
+                         diff=_diff(original, best_rec.text, clipped), status=result.status, message=result.message,
+                         best_iteration=best_rec.iteration)
+    from ilcnc.program.insert import inserted_moves
+
+    ins = inserted_moves(original)[original.command_moves]
+    best_run = next((r for r in runs if r.iteration == best_rec.iteration), None)
+    if ins.any() and best_run is not None and runs[0].actual_mm is not None:
+        from ilcnc.shop.report import plot_refined_corner
+
+        out_prog = read_program(original.path, default_units=original.units, data=best_rec.text.encode("latin-1"))
+        png = plot_refined_corner(program_name=original.path.name, path_mm=_path_polyline(original), first=runs[0],
+                                  best=best_run, commands_mm=out_prog.command_end_mm, inserted=ins)
+        files.append(write_atomic(req.report / "refined-corner.png", png))
+    return files
+
+
+def _path_polyline(program: Program) -> NDArray[np.float64]:
+    """The programmed feed path as a polyline (arcs sampled), NaN rows where a rapid breaks it."""
+    from ilcnc.contour.search import PathGeometry
+
+    path = PathGeometry.from_moves(program.moves)
+    pts: list[NDArray[np.float64]] = []
+    last_end: NDArray[np.float64] | None = None
+    for i in np.flatnonzero(path.active):
+        n = 1 if program.moves.kind[i] == 1 else 16
+        fr = np.linspace(0.0, 1.0, n + 1)
+        seg_pts = path.point_at(np.full(fr.size, i), fr)
+        if last_end is None or not np.allclose(seg_pts[0], last_end):
+            if pts:
+                pts.append(np.full((1, 3), np.nan))
+            pts.append(seg_pts)
+        else:
+            pts.append(seg_pts[1:])
+        last_end = seg_pts[-1]
+    return np.vstack(pts) if pts else np.zeros((0, 3))
+
+
+def _diff(original: Program, text: str, clipped: NDArray[np.bool_]) -> Any:
+    from ilcnc.shop.report import CommandDiff
+
+    new = read_program(original.path, default_units=original.units, data=text.encode("latin-1"))
+    k = np.arange(original.n_commands)
+    return CommandDiff(k=k, line=original.command_line.astype(np.int64), old_mm=original.command_end_mm,
+                       new_mm=new.command_end_mm, clipped=clipped)
+
+
+# ---------------------------------------------------------------------------------------------
+# one step from a measurement
+# ---------------------------------------------------------------------------------------------
+
+
+def _measured(req: LearnRequest, profile: MachineProfile, profile_sha: str, data: bytes, state: LearnState | None,
+              relation: str, entry_of_prog: IterationEntry | None) -> LearnOutcome:
+    made: list[Path] = []  # the state directory made by this call (until its first measurement is accepted)
+    try:
+        return _measured_step(req, profile, profile_sha, data, state, relation, entry_of_prog, made)
+    except BaseException:
+        # a refused first measurement leaves no half-made state behind (a retry would find it "not empty")
+        for d in made:
+            if d.is_dir() and not (d / "state.json").exists():
+                shutil.rmtree(d)  # made empty by this call (_new_state refuses a non-empty directory)
+        raise
+
+
+def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str, data: bytes, state: LearnState | None,
+                   relation: str, entry_of_prog: IterationEntry | None, made: list[Path]) -> LearnOutcome:
+    from ilcnc.axislog.detect import read_log
+    from ilcnc.axislog.points import read_points
+    from ilcnc.shop.measure import measure_log, measure_points
+
+    if req.state is None:
+        raise StateError(None, None, "--log/--points make one learning step per run on the machine: give --state DIR to"
+                         " keep the learning state between runs")
+    source = req.log if req.log is not None else req.points
+    assert source is not None
+    src_bytes = read_bytes(source)
+    src_sha = sha256_bytes(src_bytes)
+    refined_log = None
+    if state is None:
+        original = read_program(req.program, default_units=profile.machine.units, data=data)
+        _out_suffix_matches(original, req.out)
+        refinement = None
+        if req.refine or (profile.learning.refine.enabled == "on" and req.log is not None):
+            refinement, refined_log = _refine_from_log(req, profile, original)  # refused before any state is made
+        state = _new_state(req.state, original, data, profile, profile_sha,
+                           refined=refinement is not None and refinement.inserted.n_inserted > 0)
+        made.append(req.state)
+        first_data = data
+        if refinement is not None:
+            _store_refinement(state, refinement)
+            if refinement.inserted.n_inserted:
+                first_data = refinement.program.text.encode("latin-1")  # the refined program runs what ran
+        name = f"iter-000{state.part['suffix']}"
+        sha = state.write_file(name, first_data)
+        original = _learning_program(state, original, profile)  # the refined program when refined
+        state.iterations.append(IterationEntry(0, name, sha, state.write_corrections(0, np.zeros((original.n_commands,
+                                                                                                  3)))))
+    else:
+        original = read_program(req.program if relation == "original" else state.file(state.part["file"]),
+                                default_units=profile.machine.units, data=state.read_original_bytes())
+        _out_suffix_matches(original, req.out)
+        # a refined run (refined on the virtual CNC) learns its refined commands on the machine too: its
+        # programs are judged against the refined program, which runs the original's path
+        original = _learning_program(state, original, profile)
+        if state.status == "diverged":
+            best = state.best()
+            raise StateError(state.path, None, "this learning run stopped because the error grew twice: keep running"
+                             f" {best.program if best else 'the original'} (no further step)")
+    used = state.used_measurement(src_sha)
+    if used is not None:
+        raise LogError(source, None, f"this measurement was already used for iteration {used.iteration}: record a new"
+                       " run of the latest program")
+    entry = state.pending()
+    if entry is None:
+        raise StateError(state.path, None, "no program is waiting for a measurement (the run has ended with status"
+                         f" {state.status})")
+    if req.refine and refined_log is None:
+        raise StateError(state.directory, None, "--refine refines at the start of a run (from the log of the original"
+                         " program); this state holds a run already")
+    if relation == "output" and entry_of_prog is not None and entry_of_prog is not entry:
+        raise StateError(req.program, None, f"is the program of iteration {entry_of_prog.iteration}, but the state waits"
+                         f" for a measurement of iteration {entry.iteration} ({entry.program}): run that one")
+    ran = read_program(state.file(entry.program), default_units=profile.machine.units, data=state.read_program_bytes(entry))
+    kind = state.error
+    if req.log is not None:
+        period = req.log_period_s if req.log_period_s is not None else profile.machine.servo_period_s
+        log = refined_log if refined_log is not None else read_log(
+            req.log, fmt=req.log_format, period_s=period, units=req.log_units, columns=req.log_columns,
+            offset=req.log_offset)
+        meas = measure_log(log, ran, original, profile, kind, source=req.log, units=req.log_units)
+    else:
+        assert req.points is not None
+        meas = measure_points(read_points(req.points), original, profile, source=req.points,
+                              reach_mm=req.points_reach_mm)
+    # the measurement of this iteration (written before the index that names it)
+    entry.errors = state.write_errors(entry.iteration, meas.signal.e_mm, meas.signal.t_s, meas.signal.valid)
+    entry.stats = meas.stats
+    entry.measured_from = {"kind": meas.kind, "path": str(source), "sha256": src_sha}
+    if meas.air_stats is not None:
+        entry.measured_from["air_error_mm"] = meas.air_stats
+    best = state.best()
+    kept_stats = [e.stats for e in state.kept() if e.stats is not None]
+    ref_stats = best_stats(kept_stats) if kept_stats else None
+    worse = grew(meas.stats, ref_stats, resolution_mm=profile.machine.resolution_mm) if ref_stats else []
+    entry.kept = not worse
+    notes = list(meas.notes)
+    if profile.learning.refine.feed == "on":
+        notes.append("feed: learning.refine.feed lowers feeds on the virtual CNC only (learn without --log); this"
+                     " measured step changes coordinates alone")
+    if refined_log is not None and state.part.get("refined"):
+        notes.insert(0, f"refined from the log of the original program: {state.part['refined']['inserted_lines']}"
+                        " lines inserted (docs/learning.md, Refinement)")
+    status, message = "stepped", ""
+    out: Path | None = None
+    clips: list[Clip] = []
+    n_iter = req.iterations if req.iterations is not None else profile.learning.iterations
+    if worse:
+        what = " and ".join(f"{w.upper()} {ref_stats[w] * 1e3:.2f} → {meas.stats[w] * 1e3:.2f} µm" for w in worse)  # type: ignore[index]
+        if state.gain_scale < 1.0:
+            state.status = "diverged"
+            state.save()
+            message = (f"iteration {entry.iteration} made the error worse again ({what}) with the gain halved: learning"
+                       f" stopped; keep running {best.program}, the best program")  # type: ignore[union-attr]
+            return _measured_outcome(req, state, "diverged", message, None, [], notes)
+        state.gain_scale *= 0.5
+        notes.append(f"iteration {entry.iteration} made the error worse ({what}): not kept; the next program starts from"
+                     f" iteration {best.iteration} with the gain halved")  # type: ignore[union-attr]
+    stats_now = state.best().stats  # type: ignore[union-attr]
+    if stats_now["max"] <= profile.learning.stop_tolerance_mm:
+        state.status = "converged"
+        state.save()
+        message = (f"max error {stats_now['max'] * 1e3:.3f} µm is within the stop tolerance: keep running"
+                   f" {state.best().program}")  # type: ignore[union-attr]
+        return _measured_outcome(req, state, "converged", message, None, [], notes)
+    if entry.iteration >= n_iter:
+        state.status = "max_iterations"
+        state.save()
+        message = f"{entry.iteration} iterations made (the limit): keep running {state.best().program}"  # type: ignore[union-attr]
+        return _measured_outcome(req, state, "max_iterations", message, None, [], notes)
+    learner = Learner.for_program(original, profile)
+    kept = state.kept()[-learner.law.memory:]
+    u_hist = [state.read_corrections(e) for e in kept]
+    s_hist = []
+    for e in kept:
+        ee, tt, vv = state.read_errors(e)
+        s_hist.append(CommandSignal(ee, tt, vv, kind))
+    u_new, clips = learner.propose(u_hist, s_hist, scale=state.gain_scale)
+    steps = profile.learning.model_steps
+    if steps and meas.kind != "log":
+        notes.append("no model-assisted step: probed points measure end points, not the path error the virtual CNC"
+                     " predicts")
+    elif steps:
+        # the history holds the state's error estimate (a log measures it; points do not: above)
+        u_new, clips, ms = model_assisted_correction(learner, u_hist[-1], s_hist[-1], u_new, clips, steps,
+                                                     scale=state.gain_scale)
+        why = {"steps": "", "no gain": ": the next would not lower the predicted error",
+               "law": f": the {profile.learning.law} law keeps a history",
+               "kind": f": the virtual CNC does not predict the {state.error} estimate"}[ms.reason]
+        notes.append(f"model-assisted step: {ms.made} of {steps} virtual-CNC steps kept{why}; RMS |E(k)| measured"
+                     f" {ms.predicted_rms_mm[0] * 1e3:.2f} µm, predicted "
+                     + " → ".join(f"{r * 1e3:.2f}" for r in ms.predicted_rms_mm[1:]) + " µm")
+    text, _prog = program_with_corrections(original, u_new, profile)
+    nxt = entry.iteration + 1
+    name = f"iter-{nxt:03d}{state.part['suffix']}"
+    sha = state.write_file(name, text.encode("latin-1"))
+    new_entry = IterationEntry(nxt, name, sha, state.write_corrections(nxt, u_new), gain_scale=state.gain_scale,
+                               clipped=len(clips), output=str(req.out))
+    out = _write_output(req, text, original, state.part["sha256"], nxt)
+    state.iterations.append(new_entry)
+    state.save()
+    message = (f"iteration {entry.iteration} measured ({meas.kind}): max {meas.stats['max'] * 1e3:.2f} µm, RMS"
+               f" {meas.stats['rms'] * 1e3:.2f} µm; wrote iteration {nxt}: run {req.out.name} on the machine and"
+               " measure it next")
+    return _measured_outcome(req, state, status, message, out, clips, notes, meas)
+
+
+def _measured_outcome(req: LearnRequest, state: LearnState, status: str, message: str, out: Path | None,
+                      clips: list[Clip], notes: list[str], meas: Any = None) -> LearnOutcome:
+    its = [_entry_json(e) for e in state.iterations]
+    first = state.iterations[0].stats if state.iterations else None
+    best = state.best()
+    red = 0.0
+    if first and best is not None and best.stats and first["rms"] > 0:
+        red = 1.0 - best.stats["rms"] / first["rms"]
+    oc = LearnOutcome("log" if req.log is not None else "points", req.program, out, state.directory, its, status, message,
+                      clips, 0, notes, reduction_rms=red, refined=state.part.get("refined"))
+    if req.report is not None:
+        oc.report_files = _report_measured(req, state, meas, clips)
+    return oc
+
+
+def _report_measured(req: LearnRequest, state: LearnState, meas: Any, clips: list[Clip]) -> list[Path]:
+    from ilcnc.shop.report import ReportRun, write_report
+
+    original = read_program(state.file(state.part["file"]), data=state.read_original_bytes())
+    runs = []
+    for e in state.iterations:
+        if e.stats is None:
+            continue
+        this = meas is not None and e is [x for x in state.iterations if x.stats is not None][-1]
+        runs.append(ReportRun(iteration=e.iteration, kept=bool(e.kept), stats_mm=dict(e.stats), clipped=e.clipped,
+                              gain_scale=e.gain_scale, actual_mm=meas.actual_mm if this else None,
+                              contour_mm=meas.contour_mm if this else None, signed_mm=meas.signed_mm if this else None,
+                              path_pos_mm=meas.path_pos_mm if this else None, feed_mask=meas.feed_mask if this else None,
+                              foot_mm=meas.foot_mm if this else None))
+    last = state.iterations[-1]
+    text = state.read_program_bytes(last).decode("latin-1")
+    clipped = np.zeros(original.n_commands, bool)
+    for c in clips:
+        clipped[c.k] = True
+    return write_report(req.report, program_name=original.path.name, path_mm=_path_polyline(original), runs=runs,
+                        diff=_diff(original, text, clipped), status=state.status)  # best: the lowest measured kept
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def learn_part(req: LearnRequest, *, progress: Callable[[int, int, str], None] | None = None) -> LearnOutcome:
+    """Run ``ilcnc learn``: virtual learning, or one step from a measurement; keep the state.
+
+    Raises
+    ------
+    InputError
+        Bad program, profile, measurement or state (one-line message).
+    """
+    from ilcnc.errors import InputError
+
+    if req.log is not None and req.points is not None:
+        raise InputError(None, None, "give either --log or --points, not both")
+    profile = load_profile(req.profile).with_cutting_top(req.cutting_below_z_mm)
+    profile_sha = sha256_bytes(read_bytes(req.profile))
+    data = read_bytes(req.program)
+    if req.refine and req.points is not None:
+        raise InputError(req.points, None, "--refine needs the error along the path: a log of the original program"
+                         " (--log), or a virtual run; measured points hold it at the end points only")
+    if req.force and (req.log is not None or req.points is not None):
+        raise InputError(None, None, "--force starts a new virtual run; a step from --log/--points continues its --state")
+    fresh = req.force or req.state is None or not LearnState.exists(req.state)
+    state = None if fresh else LearnState.load(req.state)
+    relation, entry = _resolve_part(req, data, state)
+    if req.log is None and req.points is None:
+        return _virtual(req, profile, profile_sha, data, state, relation, progress)
+    return _measured(req, profile, profile_sha, data, state, relation, entry)

@@ -1,0 +1,48 @@
+"""The virtual CNC: trajectory planners (ilcnc's own and LinuxCNC's), drive models and gain schedules, geometric
+and cutting error sources, a whole or streamed run, and the error per command ``E(k)`` a run gives.
+
+Public names are imported on first use (:mod:`ilcnc._lazy`); ilcnc's own modules import from the module
+that owns a name.
+"""
+
+from ilcnc._lazy import lazy_exports
+
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    'command_error': (
+        'CommandSignal', 'DEFAULT_ERROR', 'ERROR_KINDS', 'PathWeightedSums', 'command_end_tangents',
+        'command_signal_from_run', 'error_kind', 'measurement_gate_mm', 'path_weighted_error', 'plane_crossings',
+        'reference_command_samples', 'signal_of_simulation'
+    ),
+    'deflection': (
+        'Cutting', 'MILLING_MODES', 'MeasuredFRF', 'ModalFRF', 'Mode', 'SEED004_CUTTING_REFERENCE',
+        'SEED004_MODES_REFERENCE', 'Tool', 'engagement_angles', 'feed_per_tooth_mm', 'milling_force_n', 'read_frf',
+        'read_stock', 'seed004_cutting', 'seed004_tool', 'sle_frequency_domain_mm', 'sle_per_command_mm',
+        'sle_time_domain_mm', 'tool_displacement_mm', 'tooth_force_n'
+    ),
+    'drives': (
+        'DiscreteModel', 'DriveModelError', 'DriveStream', 'FRICTION_SUBSTEP_S', 'HAVE_NUMBA', 'axis_response',
+        'cross_coupled_response', 'discrete_model', 'filter_deviation', 'loop_response', 'path_normals',
+        'simulate_drives'
+    ),
+    'lifted': ('DAMPING', 'lifted_error', 'sample_fractions'),
+    'machine_errors': ('ErrorSources', 'wall_normals'),
+    'plan': (
+        'Reference', 'ReferenceChunk', 'check_limits', 'corner_zones_mm', 'plan_chunks', 'plan_moves', 'plan_program',
+        'planned_duration_s'
+    ),
+    'plan_base': ('EPS_MM', 'PlanLimits', 'move_directions', 'nominal_speed_mm_s'),
+    'plan_tp': (
+        'ACC_RATIO_NORMAL', 'ACC_RATIO_TANGENTIAL', 'BLEND_DIST_FRACTION', 'GAP_CYCLES', 'KINK_RATIO',
+        'LOOKAHEAD_SEGMENTS', 'MIN_SEGMENT_CYCLES', 'TOLERANCE_RATIO', 'plan_linuxcnc'
+    ),
+    'schedule': ('read_schedule', 'schedule_on_samples'),
+    'simulate': ('SimulationResult', 'simulate_program'),
+    'stream': ('StreamedRun', 'simulate_figures', 'simulate_streamed', 'stream_unsupported'),
+    'volumetric': (
+        'AxisErrorTables', 'ErrorModel', 'GridMap', 'OutsideMapError', 'SEED002_CIRCLE_CENTRE_MM',
+        'SEED002_CIRCLE_RADIUS_MM', 'SyntheticMap', 'format_grid_csv', 'format_tables_csv', 'load_volumetric',
+        'seed002_map'
+    ),
+}
+
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

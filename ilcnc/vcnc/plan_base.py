@@ -1,0 +1,109 @@
+"""What both trajectory planners share: the axes' limits, the moves' tangents and their capped speeds.
+
+:mod:`ilcnc.vcnc.plan` (ilcnc's own jerk-limited planner) and
+:mod:`ilcnc.vcnc.plan_tp` (LinuxCNC's trapezoidal planner) plan the same move
+table under the same :class:`PlanLimits`; both start from each move's unit
+tangent at its ends (:func:`move_directions`: lines, arcs and helices) and
+its programmed feed capped by the axes' velocity limits
+(:func:`nominal_speed_mm_s`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ilcnc.profile.schema import MachineProfile
+from ilcnc.program.geometry import arc_sweep_rad
+from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
+
+__all__ = ["EPS_MM", "PlanLimits", "move_directions", "nominal_speed_mm_s"]
+
+#: Lengths below this are zero, mm.
+EPS_MM = 1e-9
+
+
+@dataclass(frozen=True, slots=True)
+class PlanLimits:
+    """Per-axis kinematic limits in mm and s (arrays of 3; inf for an axis without limits)."""
+
+    velocity_mm_s: NDArray[np.float64]
+    rapid_mm_s: NDArray[np.float64]
+    acceleration_mm_s2: NDArray[np.float64]
+    jerk_mm_s3: NDArray[np.float64]
+
+    @classmethod
+    def from_profile(cls, profile: MachineProfile) -> PlanLimits:
+        v = np.full(3, np.inf)
+        r = np.full(3, np.inf)
+        a = np.full(3, np.inf)
+        j = np.full(3, np.inf)
+        for i, name in enumerate("xyz"):
+            ax = profile.axes.get(name)
+            if ax is None:
+                continue
+            v[i] = ax.max_velocity_mm_s
+            r[i] = ax.rapid_mm_s
+            a[i] = ax.max_acceleration_mm_s2
+            j[i] = ax.max_jerk_mm_s3
+        return cls(v, r, a, j)
+
+
+def move_directions(moves: MoveTable) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Unit tangent at the start and at the end of every move."""
+    d = moves.end_mm - moves.start_mm
+    n = np.linalg.norm(d, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = d / n[:, None]
+    u = np.nan_to_num(u)
+    t_start = u.copy()
+    t_end = u.copy()
+    is_arc = moves.kind >= MOVE_ARC_CW
+    if is_arc.any():
+        sweep = arc_sweep_rad(moves)
+        for plane, (a1, a2, lin) in PLANE_AXES.items():
+            sel = np.flatnonzero(is_arc & (moves.plane == plane))
+            if sel.size == 0:
+                continue
+            c = moves.center_mm[sel]
+            s = moves.start_mm[sel]
+            e = moves.end_mm[sel]
+            sign = np.where(moves.kind[sel] == MOVE_ARC_CW, -1.0, 1.0)
+            r = np.hypot(s[:, a1] - c[:, a1], s[:, a2] - c[:, a2])
+            arc_len = r * sweep[sel]
+            dz = e[:, lin] - s[:, lin]
+            for tvec, p in ((t_start, s), (t_end, e)):
+                rx, ry = p[:, a1] - c[:, a1], p[:, a2] - c[:, a2]
+                tx, ty = -ry * sign, rx * sign  # CCW tangent is (-ry, rx)
+                norm = np.hypot(arc_len, dz)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    k = np.where(norm > 0, arc_len / norm, 1.0) / np.maximum(r, EPS_MM)
+                    lz = np.where(norm > 0, dz / norm, 0.0)
+                tvec[sel, a1] = tx * k
+                tvec[sel, a2] = ty * k
+                tvec[sel, lin] = lz
+    return t_start, t_end
+
+
+def nominal_speed_mm_s(moves: MoveTable, length: NDArray[np.float64], limits: PlanLimits) -> NDArray[np.float64]:
+    """Programmed speed of every move, capped so no axis exceeds its velocity limit (mm/s)."""
+    d = np.abs(moves.end_mm - moves.start_mm)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.where(length[:, None] > EPS_MM, d / length[:, None], 0.0)
+    rapid = moves.kind == MOVE_RAPID
+    vmax_axis = np.where(rapid[:, None], limits.rapid_mm_s[None, :], limits.velocity_mm_s[None, :])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cap = np.min(np.where(u > 1e-12, vmax_axis / np.maximum(u, 1e-300), np.inf), axis=1)
+    is_arc = moves.kind >= MOVE_ARC_CW
+    # an arc sweeps through every direction of its plane: cap by the slowest axis of the plane
+    if is_arc.any():
+        for plane, (a1, a2, _lin) in PLANE_AXES.items():
+            sel = is_arc & (moves.plane == plane)
+            cap[sel] = np.minimum(cap[sel], min(limits.velocity_mm_s[a1], limits.velocity_mm_s[a2]))
+    feed = np.where(rapid, np.inf, moves.feed_mm_min / 60.0)
+    feed = np.where(np.isfinite(feed) & (feed > 0) | rapid, feed, cap)
+    v = np.minimum(feed, cap)
+    v = np.where(np.isfinite(v), v, np.nanmin(np.where(np.isfinite(limits.velocity_mm_s), limits.velocity_mm_s, 1e3)))
+    return np.maximum(v, 1e-6)
