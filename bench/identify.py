@@ -15,7 +15,7 @@ the file API, reading included:
 
 * ``log``: an ilcnc axis-log CSV (``t_s,k,line,x_ref,...``) of commanded and
   actual positions, the actual with 1 µm encoder noise; model sopdt, position
-  signal (:func:`ilcnc.learning.identify.identify_file` with ``axis="x"``);
+  signal (:func:`ilcnc.learning.step_files.identify_file` with ``axis="x"``);
 * ``step``: a step-response CSV ``t_s,u,y`` of commanded and actual velocity
   with noise 1 % of the step; model sopdt, velocity signal.
 
@@ -42,8 +42,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from ilcnc.axislog.log import AxisLog, write_axis_log  # noqa: E402
-from ilcnc.learning.identify import _single_thread, identify_file, sopdt_velocity_response  # noqa: E402
-from ilcnc.profile.schema import load_profile  # noqa: E402
+from ilcnc.learning.identify import _single_thread, sopdt_velocity_response  # noqa: E402
+from ilcnc.learning.step_files import identify_file  # noqa: E402
+from ilcnc.profile.load import load_profile  # noqa: E402
 from ilcnc.vcnc.drives import axis_response  # noqa: E402
 
 PROFILE = REPO / "configs" / "seed004-ward-sopdt.yaml"

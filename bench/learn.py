@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from ilcnc.learning.learner import learn_virtual  # noqa: E402
-from ilcnc.profile.schema import load_profile, profile_from_dict  # noqa: E402
+from ilcnc.profile.load import load_profile, profile_from_dict  # noqa: E402
 from ilcnc.program import read_program  # noqa: E402
 from ilcnc.vcnc.simulate import simulate_program  # noqa: E402
 

@@ -226,7 +226,7 @@ def _stage_inspect(program: Path, profile: Path | None) -> dict[str, Any]:
 
 def _stage_simulate(program: Path, profile: Path) -> dict[str, Any]:
     """What ``ilcnc simulate PROG --profile P`` runs (no ``--out``: the figures only, chunk by chunk)."""
-    from ilcnc.profile.schema import load_profile
+    from ilcnc.profile.load import load_profile
     from ilcnc.program import read_program
     from ilcnc.vcnc.stream import simulate_figures
 
@@ -250,7 +250,7 @@ def _stage_simulate(program: Path, profile: Path) -> dict[str, Any]:
 
 def _stage_learn(program: Path, profile: Path) -> dict[str, Any]:
     from ilcnc.learning.learner import learn_virtual
-    from ilcnc.profile.schema import load_profile
+    from ilcnc.profile.load import load_profile
     from ilcnc.program import read_program
 
     prof = load_profile(profile)
@@ -529,7 +529,7 @@ def _per(r: dict[str, Any], n: float) -> float:
 
 
 def _servo_period(profile: Path) -> float:
-    from ilcnc.profile.schema import load_profile
+    from ilcnc.profile.load import load_profile
 
     return load_profile(profile).machine.servo_period_s
 

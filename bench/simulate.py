@@ -55,10 +55,12 @@ sys.path.insert(0, str(REPO))
 import ilcnc.contour.search as contour_mod  # noqa: E402
 import ilcnc.vcnc.plan as plan_mod  # noqa: E402
 import ilcnc.vcnc.simulate as sim_mod  # noqa: E402
-from ilcnc.contour.search import PathGeometry, contour_error  # noqa: E402
-from ilcnc.profile.schema import load_profile  # noqa: E402
+from ilcnc.contour.path import PathGeometry  # noqa: E402
+from ilcnc.contour.search import contour_error  # noqa: E402
+from ilcnc.profile.load import load_profile  # noqa: E402
 from ilcnc.program import read_program  # noqa: E402
-from ilcnc.vcnc.drives import axis_response, discrete_model, simulate_drives  # noqa: E402
+from ilcnc.vcnc.discrete import discrete_model  # noqa: E402
+from ilcnc.vcnc.drives import axis_response, simulate_drives  # noqa: E402
 from ilcnc.vcnc.plan import PlanLimits, plan_program  # noqa: E402
 
 LARGEST = REPO / "samples" / "third_party" / "large" / "stellabee1.ngc"
@@ -261,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
             num, den = [k * w0 * w0], [1.0, 2 * z * w0, w0 * w0, 0.0]
             inp = np.gradient(u, prof.machine.servo_period_s)
         else:
-            from ilcnc.vcnc.drives import closed_continuous  # continuous model of the same drive
+            from ilcnc.vcnc.discrete import closed_continuous
 
             num, den = closed_continuous(drive)
             inp = u

@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 from ilcnc.learning.time_design import design_time_domain, epsilon_of  # noqa: E402
 from ilcnc.learning.tune import tune_profile  # noqa: E402
-from ilcnc.profile.schema import load_profile  # noqa: E402
+from ilcnc.profile.load import load_profile  # noqa: E402
 
 TARGET_S = 5.0
 

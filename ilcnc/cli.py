@@ -173,7 +173,7 @@ def simulate(
 ) -> None:
     """Run PROGRAM on the virtual CNC: planned reference, drive models, contour error."""
     from ilcnc.axislog.log import write_axis_log
-    from ilcnc.profile.schema import load_profile
+    from ilcnc.profile.load import load_profile
     from ilcnc.program import read_program
     from ilcnc.vcnc import simulate as sim_mod
 
@@ -229,7 +229,7 @@ def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_
              log_offset: tuple[float, float, float] | None, as_json: bool) -> None:
     """``simulate --compare``: the virtual CNC's E(k) against the one measured from a log (:mod:`ilcnc.shop.fidelity`)."""
     from ilcnc.axislog.detect import read_log
-    from ilcnc.profile.schema import load_profile
+    from ilcnc.profile.load import load_profile
     from ilcnc.program import read_program
     from ilcnc.shop.fidelity import TARGET_CORRELATION, TARGET_DIFFERENCE, fidelity_of_log
 
@@ -467,7 +467,7 @@ def identify(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Fit a drive model to a measured step response; print parameters, confidence intervals and fit quality."""
-    from ilcnc.learning.identify import identify_file
+    from ilcnc.learning.step_files import identify_file
 
     for name, value, allowed in (("--model", model, ("sopdt", "mass_damper", "mass_damper_pid", "first_order_delay")),
                                  ("--signal", signal, (None, "velocity", "position")),
@@ -582,7 +582,7 @@ def check(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Exit 1 when the simulated contour error of PROGRAM's cutting moves exceeds a threshold (a CI regression gate)."""
-    from ilcnc.profile.schema import load_profile
+    from ilcnc.profile.load import load_profile
     from ilcnc.program import read_program
 
     try:

@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 from ilcnc.cli import app
 from ilcnc.contour.air import MOVE_AIR, MOVE_CUT, MOVE_NOT_FED, cutting_rule, move_classes, profile_move_classes
 from ilcnc.learning.learner import learn_virtual
-from ilcnc.profile.schema import load_profile
+from ilcnc.profile.load import load_profile
 from ilcnc.program import read_program
 from ilcnc.program.model import MOVE_RAPID
 

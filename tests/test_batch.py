@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from ilcnc import _threads
 from ilcnc.cli import app
 from ilcnc.contour import search as contour
-from ilcnc.profile.schema import load_profile
+from ilcnc.profile.load import load_profile
 from ilcnc.shop import batch
 from ilcnc.shop.batch import jobs_from_path, run_batch
 from ilcnc.vcnc import drives

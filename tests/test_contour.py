@@ -8,14 +8,9 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from ilcnc.contour.search import (
-    PathGeometry,
-    contour_error,
-    guess_hints,
-    per_command_error,
-    summary,
-    tangent_error,
-)
+from ilcnc.contour.estimates import per_command_error, summary, tangent_error
+from ilcnc.contour.path import PathGeometry
+from ilcnc.contour.search import contour_error, guess_hints
 from ilcnc.program import read_program
 from ilcnc.program.model import MOVE_ARC_CCW, MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, MoveTableBuilder
 

@@ -21,28 +21,12 @@ from scipy import signal
 from scipy.linalg import expm
 
 from ilcnc.errors import ProfileError
-from ilcnc.profile.schema import (
-    FirstOrderDelayDrive,
-    MassDamperPidDrive,
-    PFfFrictionDrive,
-    SopdtDrive,
-    TransferFunctionDrive,
-    default_profile,
-    load_profile,
-    profile_from_dict,
-)
-from ilcnc.vcnc import drives
-from ilcnc.vcnc.drives import (
-    DiscreteModel,
-    DriveModelError,
-    axis_response,
-    cross_coupled_response,
-    discrete_model,
-    filter_deviation,
-    loop_response,
-    path_normals,
-    simulate_drives,
-)
+from ilcnc.profile.load import default_profile, load_profile, profile_from_dict
+from ilcnc.profile.sections import FirstOrderDelayDrive, MassDamperPidDrive, PFfFrictionDrive, SopdtDrive, TransferFunctionDrive
+from ilcnc.vcnc import discrete, drive_loop, drives
+from ilcnc.vcnc.discrete import DiscreteModel, DriveModelError, discrete_model
+from ilcnc.vcnc.drive_loop import path_normals
+from ilcnc.vcnc.drives import axis_response, cross_coupled_response, filter_deviation, loop_response, simulate_drives
 
 T = 1e-3  # servo period used by most tests, s
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -394,18 +378,18 @@ def test_axis_sticks_below_breakaway() -> None:
 def test_compiled_kernels_match_their_python_versions() -> None:
     ref = _circle(5.0, 5.0, 0.3)
     fr = dataclasses.replace(PFF, coulomb_n=100.0, static_n=130.0, stribeck_velocity_mm_s=1.0)
-    plants = [drives.pff_plant(fr), drives._loop_plant(SEED003_G1)]
+    plants = [discrete.pff_plant(fr), discrete.loop_plant(SEED003_G1)]
     dev = ref - ref[0]
-    arr = drives._kernel_arrays(plants, T)
+    arr = drive_loop._kernel_arrays(plants, T)
     vref = np.diff(dev, axis=0, prepend=dev[:1]) / T
     keys = ("phi", "g0", "g1", "cq", "delay", "kff", "kerr", "nsub", "phih", "guh", "gfh", "cv", "bstick")
     args = (dev, vref, path_normals(ref), 3.0, *(arr[k] for k in keys), *(arr[k] for k in ("fc", "fbreak", "vs", "phis", "gus")))
-    fast = drives._loop_kernel(*args)
-    slow = drives._loop_kernel.py_func(*args)
+    fast = drive_loop._loop_kernel(*args)
+    slow = drive_loop._loop_kernel.py_func(*args)
     assert np.max(np.abs(fast - slow)) < 1e-12
-    single = [arr[k][0] for k in drives._FRICTION_ARGS]
-    one = drives._friction_kernel(dev[:, 0].copy(), vref[:, 0].copy(), *single)
-    assert np.max(np.abs(one - drives._friction_kernel.py_func(dev[:, 0].copy(), vref[:, 0].copy(), *single))) < 1e-12
+    single = [arr[k][0] for k in drive_loop._FRICTION_ARGS]
+    one = drive_loop._friction_kernel(dev[:, 0].copy(), vref[:, 0].copy(), *single)
+    assert np.max(np.abs(one - drive_loop._friction_kernel.py_func(dev[:, 0].copy(), vref[:, 0].copy(), *single))) < 1e-12
     assert np.max(np.abs(one - axis_response(fr, ref[:, 0], T) + ref[0, 0])) < 1e-12
 
 
@@ -533,8 +517,8 @@ def test_seed001_profile_reproduces_the_stability_range() -> None:
 
 
 def _phase_margin(drive: PFfFrictionDrive) -> float:
-    p = drives.pff_plant(drive)
-    pn, pd = drives._discretise(p.a, p.bu, p.c, T).tf()
+    p = discrete.pff_plant(drive)
+    pn, pd = discrete.discretise(p.a, p.bu, p.c, T).tf()
     f = np.logspace(-1, math.log10(0.499 / T), 20000)
     z = np.exp(-2j * math.pi * f * T)
     loop = p.kerr * np.polyval(pn[::-1], z) / np.polyval(pd[::-1], z)
@@ -556,7 +540,7 @@ def test_filter_deviation_of_zero_is_zero() -> None:
                          ids=["sopdt", "sopdt_p", "pid", "tf_unity", "pff", "fo_delay", "pff_friction"])
 def test_one_pass_columns_equal_axis_response(drive: object, monkeypatch: pytest.MonkeyPatch) -> None:
     # simulate_drives writes each column in one compiled pass (deflated filter or friction loop fed from the
-    # reference), the axes in threads; axis_response is the whole-array path (lfilter / _run_loop): the same
+    # reference), the axes in threads; axis_response is the whole-array path (lfilter / run_loop): the same
     # recursion in two implementations (measured: bit for bit with numba 0.68 and scipy 1.17). A compiler may
     # round a multiply-add once where the other rounds twice: at most a few eps |y| per step, carried on by
     # the filter with its gain ||h||_1 (below 10 for these drives) -- 1000 eps max|y| bounds it with margin

@@ -11,7 +11,7 @@ import pytest
 
 from ilcnc.learning.feed import FeedLaw, feed_cost_s, move_errors_mm
 from ilcnc.learning.learner import learn_virtual, program_with_corrections, refine_for_learning
-from ilcnc.profile.schema import load_profile
+from ilcnc.profile.load import load_profile
 from ilcnc.program import read_program
 from ilcnc.program.feedwords import feed_edits, feed_moves
 from ilcnc.program.model import MOVE_RAPID

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from ilcnc.errors import ProgramError, UnsupportedError
-from ilcnc.program import heidenhain
-from ilcnc.program.heidenhain import read_heidenhain, write_klartext
+from ilcnc.program import heidenhain, heidenhain_lexer
+from ilcnc.program.heidenhain import read_heidenhain
+from ilcnc.program.heidenhain_write import write_klartext
 from ilcnc.program.model import (
     FLAG_CUTTER_COMP,
     FLAG_DERIVED,
@@ -639,7 +640,7 @@ def test_numpy_runs_equal_block_by_block(monkeypatch):
     for trial in range(6):
         text = _random_l_program(rng, 400, crlf=trial % 2 == 1)
         fast = read_text(text)
-        monkeypatch.setattr(heidenhain, "MIN_RUN", 10**9)
+        monkeypatch.setattr(heidenhain_lexer, "MIN_RUN", 10**9)
         slow = read_text(text)
         monkeypatch.undo()
         a, b = fast.moves, slow.moves
@@ -988,7 +989,7 @@ def test_cycle_32_in_numpy_runs_and_for_held_moves(monkeypatch):
     text = pgm("L X+0 Y+0 F100", "CYCL DEF 32.0 TOLERANZ", "CYCL DEF 32.1 T0.05", *body,
                "CYCL DEF 32.0 TOLERANZ", "CYCL DEF 32.1 T0.001", "L X+50 Y+5", "RND R0.2", "L X+60 Y+20", *body)
     fast = read_text(text)
-    monkeypatch.setattr(heidenhain, "MIN_RUN", 10**9)
+    monkeypatch.setattr(heidenhain_lexer, "MIN_RUN", 10**9)
     slow = read_text(text)
     monkeypatch.undo()
     for p in (fast, slow):

@@ -35,16 +35,11 @@ import numpy as np
 import pytest
 
 from ilcnc.errors import InputError, ProfileError
-from ilcnc.learning.identify import (
-    GAIN_TOLERANCE,
-    PARAMETERS,
-    Identification,
-    identify_file,
-    identify_step,
-    read_step_csv,
-    sopdt_velocity_response,
-)
-from ilcnc.profile.schema import FirstOrderDelayDrive, MassDamperPidDrive, SopdtDrive, load_profile
+from ilcnc.learning.identification import GAIN_TOLERANCE, PARAMETERS, Identification
+from ilcnc.learning.identify import identify_step, sopdt_velocity_response
+from ilcnc.learning.step_files import identify_file, read_step_csv
+from ilcnc.profile.load import load_profile
+from ilcnc.profile.sections import FirstOrderDelayDrive, MassDamperPidDrive, SopdtDrive
 from ilcnc.vcnc.drives import axis_response
 
 REPO = Path(__file__).resolve().parents[1]
@@ -275,7 +270,7 @@ def test_sopdt_with_the_profiles_position_loop() -> None:
     prof = load_profile(CONFIGS / "example-mill.yaml")
     data = prof.to_dict()
     data["axes"]["x"]["drive"]["position_gain_1_s"] = 40.0
-    from ilcnc.profile.schema import profile_from_dict
+    from ilcnc.profile.load import profile_from_dict
 
     prof = profile_from_dict(data)
     drive = SopdtDrive(omega0_rad_s=150.0, zeta=0.9, gain=1.0, delay_s=0.002, position_gain_1_s=40.0)

@@ -8,7 +8,8 @@ from itertools import pairwise
 import numpy as np
 import pytest
 
-from ilcnc.contour.search import PathGeometry, contour_error
+from ilcnc.contour.path import PathGeometry
+from ilcnc.contour.search import contour_error
 from ilcnc.errors import ProfileError
 from ilcnc.learning.laws import PidAceLaw, PLaw, SecondOrderLaw, first_markov_per_s, make_law
 from ilcnc.learning.learner import (
@@ -20,7 +21,7 @@ from ilcnc.learning.learner import (
     keep_moves_forward,
     learn_virtual,
 )
-from ilcnc.profile.schema import load_profile, profile_from_dict
+from ilcnc.profile.load import load_profile, profile_from_dict
 from ilcnc.program import read_program
 from ilcnc.program.model import MOVE_RAPID
 from ilcnc.vcnc.command_error import path_weighted_error, plane_crossings

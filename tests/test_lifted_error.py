@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from ilcnc.learning.learner import Learner, learn_virtual, refine_for_learning
-from ilcnc.profile.schema import load_profile
+from ilcnc.profile.load import load_profile
 from ilcnc.program import read_program
 from ilcnc.vcnc.command_error import error_kind, reference_command_samples
 from ilcnc.vcnc.lifted import lifted_error

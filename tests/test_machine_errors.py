@@ -11,9 +11,10 @@ import pytest
 from typer.testing import CliRunner
 
 from ilcnc.cli import app
-from ilcnc.contour.search import PathGeometry, contour_error
+from ilcnc.contour.path import PathGeometry
+from ilcnc.contour.search import contour_error
 from ilcnc.learning.learner import learn_virtual
-from ilcnc.profile.schema import load_profile, profile_from_dict
+from ilcnc.profile.load import load_profile, profile_from_dict
 from ilcnc.program import read_program
 from ilcnc.shop.workflow import LearnRequest, learn_part
 from ilcnc.vcnc.machine_errors import ErrorSources, wall_normals

@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 
 from ilcnc.cli import app
 from ilcnc.learning.learner import Learner, model_assisted_correction
-from ilcnc.profile.schema import load_profile, profile_from_dict
+from ilcnc.profile.load import load_profile, profile_from_dict
 from ilcnc.program import read_program
 from ilcnc.vcnc.command_error import CommandSignal
 

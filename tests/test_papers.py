@@ -34,10 +34,11 @@ from numpy.typing import NDArray
 from ilcnc.errors import ProfileError
 from ilcnc.learning.laws import SecondOrderLaw, ccc_error_map, first_markov_per_s, make_law
 from ilcnc.learning.learner import LearnResult, learn_virtual, program_with_corrections
-from ilcnc.profile.schema import MachineProfile, load_profile, profile_from_dict
+from ilcnc.profile.load import load_profile, profile_from_dict
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program import Program, read_program
 from ilcnc.vcnc.command_error import signal_of_simulation
-from ilcnc.vcnc.drives import discrete_model
+from ilcnc.vcnc.discrete import discrete_model
 from ilcnc.vcnc.simulate import simulate_program
 from tests.conftest import REPO
 

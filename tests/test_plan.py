@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.profile.schema import load_profile
+from ilcnc.profile.load import load_profile
 from ilcnc.program import read_program
 from ilcnc.program.gcode import read_gcode
 from ilcnc.vcnc.plan import PlanLimits, check_limits, plan_moves, plan_program
@@ -343,7 +343,7 @@ def test_profile_path_control_is_the_mode_of_moves_the_program_sets_none_for(tmp
     start-up mode), g61 as if with G61; tolerance (the default) keeps corner_tolerance_mm."""
     import re
 
-    from ilcnc.profile.schema import load_profile, profile_from_dict
+    from ilcnc.profile.load import load_profile, profile_from_dict
     from ilcnc.program import read_program
     from ilcnc.vcnc.plan import plan_program
     from tests.conftest import REPO

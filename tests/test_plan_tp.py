@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.contour.search import PathGeometry, contour_error, guess_hints
-from ilcnc.profile.schema import load_profile
+from ilcnc.contour.path import PathGeometry
+from ilcnc.contour.search import contour_error, guess_hints
+from ilcnc.profile.load import load_profile
 from ilcnc.program import read_program
 from ilcnc.vcnc.plan import plan_chunks, plan_program, planned_duration_s
 from ilcnc.vcnc.plan_tp import ACC_RATIO_NORMAL, MIN_SEGMENT_CYCLES

@@ -11,21 +11,18 @@ from typing import Any
 import pytest
 
 from ilcnc.errors import InputError, ProfileError
-from ilcnc.profile.schema import (
-    AXIS_NAMES,
+from ilcnc.profile.docs import schema_markdown
+from ilcnc.profile.load import default_profile, load_profile, profile_from_dict
+from ilcnc.profile.schema import AXIS_NAMES, SPECS
+from ilcnc.profile.sections import (
     DRIVE_MODELS,
-    SPECS,
     FirstOrderDelayDrive,
     MachineProfile,
     MassDamperPidDrive,
     PFfFrictionDrive,
     SopdtDrive,
     TransferFunctionDrive,
-    default_profile,
     has_position_loop,
-    load_profile,
-    profile_from_dict,
-    schema_markdown,
 )
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -19,7 +19,8 @@ import yaml
 
 from ilcnc.errors import InputError, ProfileError
 from ilcnc.profile.edit import NOTE_PREFIX, REMARK_PREFIX, format_scalar, update_profile, update_text
-from ilcnc.profile.schema import MassDamperPidDrive, SopdtDrive, load_profile
+from ilcnc.profile.load import load_profile
+from ilcnc.profile.sections import MassDamperPidDrive, SopdtDrive
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIGS = sorted((REPO / "configs").glob("*.yaml"))

@@ -12,9 +12,10 @@ import yaml
 from typer.testing import CliRunner
 
 from ilcnc.cli import app
-from ilcnc.contour.search import PathGeometry, contour_error
+from ilcnc.contour.path import PathGeometry
+from ilcnc.contour.search import contour_error
 from ilcnc.learning.learner import refine_for_learning
-from ilcnc.profile.schema import load_profile
+from ilcnc.profile.load import load_profile
 from ilcnc.program import read_program
 from ilcnc.program.insert import MARKER, inserted_moves, split_move_of
 from ilcnc.shop.state import LearnState

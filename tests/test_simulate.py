@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from ilcnc.errors import InputError
-from ilcnc.profile.schema import default_profile, profile_from_dict
+from ilcnc.profile.load import default_profile, profile_from_dict
 from ilcnc.program.gcode import read_gcode
 from ilcnc.vcnc.simulate import simulate_program
 

@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 
 from ilcnc.cli import app
 from ilcnc.learning.learner import learn_virtual, program_with_corrections
-from ilcnc.profile.schema import load_profile
+from ilcnc.profile.load import load_profile
 from ilcnc.program import read_program
 from ilcnc.vcnc.command_error import signal_of_simulation
 from ilcnc.vcnc.drives import DriveStream, simulate_drives
@@ -174,7 +174,7 @@ def test_in_position_wait_after_rapids_is_the_profiles() -> None:
     prof = load_profile(CONFIGS / "example-mill.yaml")
     d = prof.to_dict()
     d["planner"]["in_position_s"] = 0.0
-    from ilcnc.profile.schema import profile_from_dict
+    from ilcnc.profile.load import profile_from_dict
 
     fast = profile_from_dict(d)
     t_wait, t_none = planned_duration_s(prog, prof), planned_duration_s(prog, fast)

@@ -24,7 +24,8 @@ from ilcnc.learning.learner import learn_virtual
 from ilcnc.learning.lifted_check import LiftedCheck, check_lifted, lifted_model
 from ilcnc.learning.time_design import design_time_domain, epsilon_of, frequency_grid
 from ilcnc.learning.tune import TuneReport, tune_profile
-from ilcnc.profile.schema import MachineProfile, load_profile, profile_from_dict
+from ilcnc.profile.load import load_profile, profile_from_dict
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program import Program, read_program
 from ilcnc.vcnc.drives import simulate_drives
 from ilcnc.vcnc.plan import plan_program

@@ -12,10 +12,9 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'CuttingRule', 'MOVE_AIR', 'MOVE_CUT', 'MOVE_NOT_FED', 'air_above_mm', 'air_command_mask', 'air_commands',
         'cutting_rule', 'cutting_samples', 'move_classes', 'profile_cutting_rule', 'profile_move_classes'
     ),
-    'search': (
-        'CommandError', 'ContourError', 'DEFAULT_CHUNK', 'DEFAULT_WINDOW', 'PathGeometry', 'REACH_FACTOR',
-        'contour_error', 'guess_hints', 'per_command_error', 'sample_command', 'summary', 'tangent_error'
-    ),
+    'estimates': ('CommandError', 'per_command_error', 'sample_command', 'summary', 'tangent_error'),
+    'path': ('FAR_MM', 'PathGeometry', 'TWO_PI', 'WorkBuffers'),
+    'search': ('ContourError', 'DEFAULT_CHUNK', 'DEFAULT_WINDOW', 'REACH_FACTOR', 'contour_error', 'guess_hints'),
 }
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

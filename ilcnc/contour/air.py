@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
 
 __all__ = ["MOVE_AIR", "MOVE_CUT", "MOVE_NOT_FED", "CuttingRule", "air_above_mm", "air_command_mask", "air_commands",

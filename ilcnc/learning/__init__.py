@@ -10,10 +10,11 @@ from ilcnc._lazy import lazy_exports
 _EXPORTS: dict[str, tuple[str, ...]] = {
     'feed': ('FeedLaw', 'feed_cost_s', 'move_errors_mm', 'move_times_s'),
     'gain_schedule': ('DEFAULT_DK', 'ScheduleResult', 'schedule_gains', 'seed001_standin_program'),
-    'identify': (
-        'GAIN_TOLERANCE', 'Identification', 'MODELS', 'PARAMETERS', 'SIGNALS', 'UNITS', 'identify_file',
-        'identify_step', 'read_step_csv', 'sopdt_velocity_response'
+    'identification': (
+        'GAIN_TOLERANCE', 'Identification', 'MODELS', 'MODEL_ALIASES', 'PARAMETERS', 'PROFILE_MODEL', 'SIGNALS',
+        'UNITS'
     ),
+    'identify': ('identify_step', 'sopdt_velocity_response'),
     'laws': (
         'AXES', 'LAWS', 'LearningLaw', 'PLaw', 'PidAceLaw', 'SecondOrderLaw', 'ccc_error_map', 'cut_runs',
         'first_markov_per_s', 'make_law'
@@ -27,6 +28,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'LiftedModel', 'check_lifted', 'lifted_model'
     ),
     'refine': ('RefinePlan', 'RefineSite', 'plan_refinement', 'refine_threshold_mm'),
+    'step_files': ('identify_file', 'read_step_csv'),
     'time_design': (
         'AxisDesign', 'DEFAULT_F_MAX_HZ', 'EpsilonCurve', 'LeadOption', 'TuneResult', 'design_time_domain',
         'epsilon_of', 'frequency_grid', 'learning_response'

@@ -24,7 +24,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ilcnc.profile.schema import AXIS_NAMES, MachineProfile, PFfFrictionDrive
+from ilcnc.profile.schema import AXIS_NAMES
+from ilcnc.profile.sections import MachineProfile, PFfFrictionDrive
 
 __all__ = ["DEFAULT_DK", "ScheduleResult", "schedule_gains", "seed001_standin_program"]
 
@@ -75,8 +76,9 @@ def seed001_standin_program(*, step_mm: float = 0.5, feed_mm_min: float = 3000.0
 
 
 def _schedule_plant_arrays(drive: PFfFrictionDrive, period_s: float) -> dict[str, Any]:
-    """Sub-step matrices of the friction loop (:func:`ilcnc.vcnc.drives.friction_steps`), also without friction."""
-    from ilcnc.vcnc.drives import FRICTION_SUBSTEP_S, pff_plant, stuck_system, zoh_discretize
+    """Sub-step matrices of the friction loop (:func:`ilcnc.vcnc.drive_loop.friction_steps`), also without friction."""
+    from ilcnc.vcnc.discrete import FRICTION_SUBSTEP_S, pff_plant, zoh_discretize
+    from ilcnc.vcnc.drive_loop import stuck_system
 
     p = pff_plant(drive)
     nsub = max(1, math.ceil(period_s / FRICTION_SUBSTEP_S - 1e-9))
@@ -243,7 +245,7 @@ def _schedule_kernel() -> tuple[Any, Any, Any]:
     without numba). The loop is :mod:`ilcnc.vcnc.drives`'s own (its private sub-step and matrices), so with a
     constant gain it reproduces :func:`ilcnc.vcnc.drives.simulate_drives` to rounding."""
     from ilcnc._jit import njit
-    from ilcnc.vcnc.drives import friction_steps
+    from ilcnc.vcnc.drive_loop import friction_steps
 
     k = _SCHEDULE_KERNELS.get("kernel")
     if k is None:
@@ -367,7 +369,7 @@ def schedule_gains(program: Any, profile: MachineProfile, *, axis: str | None = 
     """Receding-horizon offline adjustment of a per-instant position gain of one axis (seed 001).
 
     Every setting left at ``None`` is taken from the profile's ``tuning.schedule`` section
-    (:class:`ilcnc.profile.schema.ScheduleTuning`; seed 001's values by default: z, [1, 2.7], Np 50, λ 0.01,
+    (:class:`ilcnc.profile.sections.ScheduleTuning`; seed 001's values by default: z, [1, 2.7], Np 50, λ 0.01,
     ΔK -0.05..0.05 step 0.01, ``predicted``).
 
     Parameters
@@ -405,7 +407,8 @@ def schedule_gains(program: Any, profile: MachineProfile, *, axis: str | None = 
         Contour errors are measured against the reference setpoints (seed 001
         eq. 1: the closest desired position and its neighbouring segments).
     """
-    from ilcnc.contour.search import PathGeometry, contour_error
+    from ilcnc.contour.path import PathGeometry
+    from ilcnc.contour.search import contour_error
     from ilcnc.program.model import MOVE_RAPID
     from ilcnc.vcnc.drives import simulate_drives
     from ilcnc.vcnc.plan import plan_program

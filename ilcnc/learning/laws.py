@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ilcnc.errors import ProfileError
-from ilcnc.profile.schema import LearningSection, MachineProfile
+from ilcnc.profile.sections import LearningSection, MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
 
 __all__ = [
@@ -271,8 +271,8 @@ def first_markov_per_s(profile: MachineProfile, axis: str) -> float:
     degree is one more than the numerator's, 0 otherwise (a drive with dead
     time or relative degree two has no such ``D``).
     """
-    from ilcnc.profile.schema import FirstOrderDelayDrive, SopdtDrive
-    from ilcnc.vcnc.drives import closed_continuous
+    from ilcnc.profile.sections import FirstOrderDelayDrive, SopdtDrive
+    from ilcnc.vcnc.discrete import closed_continuous
 
     drive = profile.axes[axis].drive
     if isinstance(drive, (SopdtDrive, FirstOrderDelayDrive)) and getattr(drive, "delay_s", 0.0):
@@ -407,7 +407,7 @@ def ccc_error_map(profile: MachineProfile, program: Program) -> NDArray[np.float
     ctl = profile.controller
     if ctl.type != "cross_coupled" or not all(a in profile.axes for a in ctl.coupled_axes):
         return None
-    from ilcnc.contour.search import PathGeometry
+    from ilcnc.contour.path import PathGeometry
     from ilcnc.vcnc.command_error import command_end_tangents
 
     i, j = (AXES.index(a) for a in ctl.coupled_axes)

@@ -50,7 +50,7 @@ from ilcnc.contour.air import (
 from ilcnc.errors import UnsupportedError
 from ilcnc.learning.feed import FeedLaw, FeedOutcome, move_errors_mm, move_times_s
 from ilcnc.learning.laws import AXES, LearningLaw, cut_runs, make_law
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import (
     FLAG_CUTTER_COMP,
     FLAG_DERIVED,

@@ -31,7 +31,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.jsonout import json_float
-from ilcnc.profile.schema import AXIS_NAMES, MachineProfile, PFfFrictionDrive
+from ilcnc.profile.schema import AXIS_NAMES
+from ilcnc.profile.sections import MachineProfile, PFfFrictionDrive
 
 __all__ = [
     "DEFAULT_GAMMAS", "DEFAULT_MAX_COMMANDS", "DEFAULT_Q_FILTERS_HZ", "LiftedCandidate", "LiftedCheck",
@@ -125,7 +126,8 @@ def _linear_drives(profile: MachineProfile) -> bool:
 
 def _settle_samples(profile: MachineProfile, period_s: float, n_max: int) -> int:
     """Samples after which every axis's response to a pulse is below :data:`_SETTLE_TOL` of its peak."""
-    from ilcnc.vcnc.drives import discrete_model, filter_deviation
+    from ilcnc.vcnc.discrete import discrete_model
+    from ilcnc.vcnc.drives import filter_deviation
 
     cap = int(min(n_max, math.ceil(_SETTLE_MAX_S / period_s)))
     out = 1
@@ -233,7 +235,8 @@ def lifted_model(program: Any, profile: MachineProfile, *, commands: tuple[int, 
         path_weighted_error,
         signal_of_simulation,
     )
-    from ilcnc.vcnc.drives import discrete_model, filter_deviation, simulate_drives
+    from ilcnc.vcnc.discrete import discrete_model
+    from ilcnc.vcnc.drives import filter_deviation, simulate_drives
     from ilcnc.vcnc.lifted import sample_fractions
     from ilcnc.vcnc.simulate import simulate_program
 

@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 
 from ilcnc.contour.air import MOVE_CUT
 from ilcnc.errors import InputError
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, Program
 
 __all__ = ["RefinePlan", "RefineSite", "plan_refinement", "refine_threshold_mm"]

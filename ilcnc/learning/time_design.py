@@ -2,7 +2,7 @@
 
 ``time`` -- the time-domain PID-type law of seed 000 (:func:`design_time_domain`)
     With ``T(z)`` the exact discrete closed loop reference → position of an
-    axis (:func:`ilcnc.vcnc.drives.discrete_model`, convention: ``q[k]`` depends on
+    axis (:func:`ilcnc.vcnc.discrete.discrete_model`, convention: ``q[k]`` depends on
     ``r[0..k-1]``), the learning update ``U_{i+1} = U_i + z^η K_l(z) e_i`` makes
     the error of the next iteration ``e_{i+1} = (1 − z^η T K_l) e_i``. The
     convergence factor is
@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ilcnc.jsonout import json_float
-from ilcnc.profile.schema import MachineProfile, PFfFrictionDrive
+from ilcnc.profile.sections import MachineProfile, PFfFrictionDrive
 
 __all__ = [
     "DEFAULT_F_MAX_HZ",
@@ -148,7 +148,7 @@ class EpsilonCurve:
 
 
 def _closed_loop(profile: MachineProfile, axis: str, freq_hz: NDArray[np.float64]) -> NDArray[np.complex128]:
-    from ilcnc.vcnc.drives import discrete_model
+    from ilcnc.vcnc.discrete import discrete_model
 
     if axis not in profile.axes:
         raise ValueError(f"axis {axis!r} is not in the profile (it has {', '.join(profile.axes)})")
@@ -456,7 +456,7 @@ def design_time_domain(profile: MachineProfile, *, f_min_hz: float = 0.0, f_max_
         (ε < 1) and the reason when not; the lead is common to all axes (the
         law has one), the one whose worst axis ε is smallest.
     """
-    from ilcnc.vcnc.drives import DriveModelError
+    from ilcnc.vcnc.discrete import DriveModelError
 
     t0 = time.perf_counter()
     ts = profile.machine.servo_period_s

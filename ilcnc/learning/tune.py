@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 from ilcnc.learning.gain_schedule import ScheduleResult, schedule_gains
 from ilcnc.learning.lifted_check import DEFAULT_MAX_COMMANDS, LiftedCheck, check_lifted
 from ilcnc.learning.time_design import DEFAULT_F_MAX_HZ, TuneResult, design_time_domain
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 
 __all__ = ["METHODS", "TuneReport", "tune_profile"]
 
@@ -195,7 +195,7 @@ def tune_profile(profile_path: str | Path, *, method: str = "auto", program: Any
     ProfileError, InputError
         From reading the profile or the program, or from writing.
     """
-    from ilcnc.profile.schema import load_profile
+    from ilcnc.profile.load import load_profile
 
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")

@@ -7,13 +7,18 @@ that owns a name.
 from ilcnc._lazy import lazy_exports
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
+    'docs': ('schema_markdown',),
     'edit': ('NOTE_PREFIX', 'REMARK_PREFIX', 'format_scalar', 'update_profile', 'update_text'),
+    'load': ('default_profile', 'load_profile', 'profile_from_dict'),
     'schema': (
-        'AXIS_NAMES', 'AxisProfile', 'ControllerSection', 'DRIVE_MODELS', 'DriveModel', 'FirstOrderDelayDrive',
-        'LearningSection', 'MAX_COEFFS', 'MAX_DK_CANDIDATES', 'MM_PER_INCH', 'MachineProfile', 'MachineSection',
-        'MassDamperPidDrive', 'OutputSection', 'PFfFrictionDrive', 'PlannerSection', 'SPECS', 'ScheduleTuning',
-        'SopdtDrive', 'Spec', 'TransferFunctionDrive', 'TuningSection', 'default_profile', 'has_position_loop',
-        'load_profile', 'profile_from_dict', 'schema_markdown'
+        'AXIS_NAMES', 'DRIVE_KEY', 'MAX_COEFFS', 'MAX_DK_CANDIDATES', 'MM_PER_INCH', 'SELECTORS', 'SPECS', 'Spec',
+        'TOP_SECTIONS', 'default_of', 'format_number', 'spec_of'
+    ),
+    'sections': (
+        'AxisProfile', 'ControllerSection', 'DRIVE_MODELS', 'DriveModel', 'FirstOrderDelayDrive', 'LearningSection',
+        'MODE_KEYS', 'MachineProfile', 'MachineSection', 'MassDamperPidDrive', 'OutputSection', 'PFfFrictionDrive',
+        'PlannerSection', 'ProfileDumper', 'ScheduleTuning', 'SopdtDrive', 'TransferFunctionDrive', 'TuningSection',
+        'has_position_loop'
     ),
 }
 

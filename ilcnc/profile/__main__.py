@@ -1,5 +1,5 @@
 """``python -m ilcnc.profile``: print the profile reference (``docs/profile.md``'s generated block)."""
 
-from ilcnc.profile.schema import schema_markdown
+from ilcnc.profile.docs import schema_markdown
 
 print(schema_markdown(), end="")

@@ -54,7 +54,7 @@ is replaced, so repeated ``--write`` runs do not pile notes up.
 
 Safety
 ------
-The updated text is validated with :func:`ilcnc.profile.schema.load_profile` before
+The updated text is validated with :func:`ilcnc.profile.load.load_profile` before
 anything is written: an invalid result raises :class:`ProfileError` naming
 the key and the file is left untouched. The file is written atomically
 (temporary file + rename), to ``out`` or in place; ``protect`` lists input
@@ -86,7 +86,7 @@ from yaml.events import (
 
 from ilcnc.errors import ProfileError
 from ilcnc.fileio import read_bytes, write_atomic
-from ilcnc.profile.schema import load_profile
+from ilcnc.profile.load import load_profile
 
 __all__ = ["NOTE_PREFIX", "REMARK_PREFIX", "format_scalar", "update_profile", "update_text"]
 

@@ -25,8 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from ilcnc.errors import ProgramError
-from ilcnc.program.expr import ExprError, Parameters, read_param_ref, read_value
+from ilcnc.program.expr import Parameters
 from ilcnc.program.gcode_flow import has_control_flow, run_control_flow
+from ilcnc.program.gcode_lexer import MAX_NUMBER, Block, Lexer, Word
 from ilcnc.program.model import (
     BLEND_EXACT_PATH,
     BLEND_EXACT_STOP,
@@ -46,9 +47,6 @@ from ilcnc.program.model import (
     PLANE_XY,
     SPAN_LAZY,
     STYLE_LITERAL,
-    STYLE_NO_LEADING_ZERO,
-    STYLE_PLUS,
-    STYLE_TRAILING_DOT,
     MoveTable,
     MoveTableBuilder,
     Program,
@@ -56,19 +54,13 @@ from ilcnc.program.model import (
     arc_off_circle,
     decode_source,
     looks_binary,
-    named_axes,
 )
 
-__all__ = ["Block", "Word", "detect_dialect", "read_gcode", "write_gcode"]
+__all__ = ["detect_dialect", "read_gcode"]
 
-# Letters LinuxCNC accepts as words (O is handled separately, E is not a word).
-_VALID_LETTERS = frozenset("ABCDEFGHIJKLMNPQRSTUVWXYZ")  # E: the analog channel of M66/M67/M68 (LinuxCNC)
 _AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
 _CENTER_INDEX = {"I": 0, "J": 1, "K": 2}
 
-_LITERAL = re.compile(r"([+-]?)[ \t]*(\d*)(\.?)(\d*)")
-_SIMPLE_LINE = re.compile(r"[ \t]*(?:[A-DF-NP-Za-df-np-z][ \t]*[+-]?[ \t]*(?:\d+(?:\.\d*)?|\.\d+)[ \t]*)*")
-_SIMPLE_WORD = re.compile(r"([A-DF-NP-Za-df-np-z])[ \t]*([+-]?)[ \t]*(\d*)(\.?)(\d*)")
 # The common CAM block: [N..] [G0|G1] [X..] [Y..] [Z..] [F..] in this order, literal numbers.
 _NUM = r"([-+]?(?:\d+(?:\.\d*)?|\.\d+))"
 _FAST_LINE = re.compile(
@@ -80,13 +72,6 @@ _FAST_LINE = re.compile(
 )
 _ALL_LINES = re.compile(rf"^(?:{_FAST_LINE.pattern}$|(.+))", re.MULTILINE)
 _FAST_MOTION = {"0": 0, "1": 10, "2": 20, "3": 30}
-#: Largest magnitude of a number in a program (anything larger is a corrupt file, not a coordinate).
-_MAX_NUMBER = 1e12
-_O_WORD = re.compile(r"[Oo]\s*(<[^>]*>|\d+|#\d+|\[)")
-_O_KEYWORDS = (
-    "sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
-    "do", "repeat", "endrepeat", "break", "continue",
-)
 
 # Modal groups of G codes (codes as round(value * 10)).
 _MOTION = {0, 10, 20, 30, 330, 331, 382, 383, 384, 385, 50, 51, 52, 53, 730, 760, 800, 810, 820, 830, 840,
@@ -117,228 +102,6 @@ _RADIUS_TOLERANCE_MM = 0.00127
 
 _CYCLES = frozenset({730, 810, 820, 830, 850, 860, 890})
 _CS_CODES = {540: 1, 550: 2, 560: 3, 570: 4, 580: 5, 590: 6, 591: 7, 592: 8, 593: 9}
-
-
-@dataclass(slots=True)
-class Word:
-    """One word of a block: letter, value and where its number is in the text."""
-
-    letter: str
-    value: float
-    start: int  # offset of the number (after the letter and spaces)
-    end: int
-    decimals: int
-    style: int
-
-
-@dataclass(slots=True)
-class Block:
-    """One lexed line."""
-
-    line: int
-    words: list[Word] = field(default_factory=list)
-    assignments: list[tuple[str | int, float]] = field(default_factory=list)
-    comments: list[str] = field(default_factory=list)
-    block_delete: bool = False
-    percent: bool = False
-    o_word: str | None = None  # the o-word text (control flow) if any
-    system: str | None = None  # grbl '$' command
-    polar: bool = False
-    end_offset: int = -1  # offset just past the last word (insertion point)
-
-
-class _Lexer:
-    """Cuts lines into blocks; evaluates parameters and expressions."""
-
-    def __init__(self, path: Path, params: Parameters) -> None:
-        self.path = path
-        self.params = params
-        self._permissive = Parameters(permissive=True)
-
-    @property
-    def lenient(self) -> bool:
-        """After the interpreter stopped, lines are checked for syntax only."""
-        return self.params is self._permissive
-
-    @lenient.setter
-    def lenient(self, on: bool) -> None:
-        if on:
-            self.params = self._permissive
-
-    def error(self, line: int, problem: str) -> ProgramError:
-        return ProgramError(self.path, line, problem)
-
-    def lex(self, s: str, base: int, line: int) -> Block:
-        """Lex one line ``s`` (no line ending) that starts at text offset ``base``."""
-        blk = Block(line)
-        if _SIMPLE_LINE.fullmatch(s) is not None:
-            words = blk.words
-            seen = 0
-            for m in _SIMPLE_WORD.finditer(s):
-                letter = m.group(1).upper()
-                sign, ip, dot, fp = m.group(2), m.group(3), m.group(4), m.group(5)
-                style = STYLE_LITERAL
-                if sign == "+":
-                    style |= STYLE_PLUS
-                if not ip:
-                    style |= STYLE_NO_LEADING_ZERO
-                elif dot and not fp:
-                    style |= STYLE_TRAILING_DOT
-                txt = m.group(0)[1:].replace(" ", "").replace("\t", "")
-                value = float(txt)
-                if not abs(value) <= _MAX_NUMBER:
-                    raise self.error(line, f"number {txt[:20]}{'...' if len(txt) > 20 else ''} out of range")
-                bit = 1 << (ord(letter) - 65)
-                if seen & bit and letter not in "GM":
-                    raise self.error(line, f"word {letter} appears twice in one block")
-                seen |= bit
-                words.append(Word(letter, value, base + m.start(2), base + m.end(), len(fp), style))
-            if words:
-                blk.end_offset = base + m.end()
-            return blk
-        return self._lex_general(s, base, line, blk)
-
-    def _lex_general(self, s: str, base: int, line: int, blk: Block) -> Block:
-        n = len(s)
-        pos = 0
-        seen: set[str] = set()
-        pending_assign: list[tuple[str | int, float]] = []
-        first = True
-        while pos < n:
-            ch = s[pos]
-            if ch in " \t\r\x0c\x1a":
-                pos += 1
-                continue
-            if ch == "(":
-                end = s.find(")", pos + 1)
-                if end < 0:
-                    raise self.error(line, "comment '(' is not closed on this line")
-                if "(" in s[pos + 1:end]:
-                    raise self.error(line, "nested '(' inside a comment")
-                blk.comments.append(s[pos + 1:end])
-                pos = end + 1
-                continue
-            if ch == ";":
-                blk.comments.append(s[pos + 1:])
-                break
-            if ch == "%":
-                rest = s[pos + 1:].strip()
-                # Mach3 posts number the closing line too ("N890 %"): a block number alone may precede it
-                numbered = bool(blk.words) and all(w.letter == "N" for w in blk.words)
-                if (blk.words and not numbered) or blk.assignments or (not first and not numbered) or (
-                        rest and not rest.startswith(("(", ";"))):
-                    raise self.error(line, "'%' must stand alone on its line (a block number may precede it)")
-                if numbered:
-                    blk.words.clear()
-                blk.percent = True
-                pos += 1
-                first = False
-                continue
-            if ch == "/" and first:
-                blk.block_delete = True
-                pos += 1
-                continue
-            if ch == "$" and first:
-                blk.system = s[pos:].strip()
-                break
-            first = False
-            if ch == "#":
-                key, pos = self._param_key(s, pos, line)
-                p2 = pos
-                while p2 < n and s[p2] in " \t":
-                    p2 += 1
-                if p2 >= n or s[p2] != "=":
-                    raise self.error(line, "parameter reference without '=' (assignment expected)")
-                value, pos = self._value(s, p2 + 1, line)
-                pending_assign.append((key, value))
-                continue
-            if ch in "@^":
-                blk.polar = True
-                if ch in seen:
-                    raise self.error(line, f"word {ch} appears twice in one block")
-                seen.add(ch)
-                vstart = pos + 1
-                value, pos = self._value(s, vstart, line)
-                blk.words.append(Word(ch, value, base + vstart, base + pos, 0, 0))
-                blk.end_offset = base + pos
-                continue
-            if ch in "Oo":
-                m = _O_WORD.match(s, pos)
-                if m is None:
-                    raise self.error(line, "O-word without a number or <name>")
-                rest = s[m.end():].lstrip().lower()
-                if blk.words:
-                    raise self.error(line, "O-word must start the block")
-                kw = next((k for k in _O_KEYWORDS if rest.startswith(k)), None)
-                if kw is None:
-                    if (m.group(1).isdigit() and not rest.strip(" \t")) or rest.startswith(("(", ";")):
-                        # Fanuc program number "O0001" on its own line
-                        blk.o_word = "program-number"
-                        pos = m.end()
-                        continue
-                    raise self.error(line, f"O-word without a known keyword ({', '.join(_O_KEYWORDS)})")
-                blk.o_word = kw
-                break
-            if ch.isalpha():
-                letter = ch.upper()
-                if letter not in _VALID_LETTERS:
-                    raise self.error(line, f"unknown word '{ch}'")
-                vpos = pos + 1
-                while vpos < n and s[vpos] in " \t":
-                    vpos += 1
-                m = _LITERAL.match(s, vpos)
-                literal = m is not None and (m.group(2) or m.group(4))
-                if literal:
-                    assert m is not None
-                    sign, ip, dot, fp = m.group(1), m.group(2), m.group(3), m.group(4)
-                    style = STYLE_LITERAL
-                    if sign == "+":
-                        style |= STYLE_PLUS
-                    if not ip:
-                        style |= STYLE_NO_LEADING_ZERO
-                    elif dot and not fp:
-                        style |= STYLE_TRAILING_DOT
-                    value = float(f"{sign}{ip}{dot}{fp}" if ip else f"{sign}0{dot}{fp}")
-                    if not abs(value) <= _MAX_NUMBER:
-                        raise self.error(line, f"number {(ip + dot + fp)[:20]}... out of range")
-                    word = Word(letter, value, base + vpos, base + m.end(), len(fp), style)
-                    pos = m.end()
-                else:
-                    if vpos >= n or not (s[vpos] in "#[+-" or s[vpos].isalpha()):
-                        raise self.error(line, f"{letter} word without a number")
-                    value, pos = self._value(s, vpos, line)
-                    word = Word(letter, value, base + vpos, base + pos, 0, 0)
-                if letter in seen and letter not in "GM":
-                    raise self.error(line, f"word {letter} appears twice in one block")
-                seen.add(letter)
-                blk.words.append(word)
-                blk.end_offset = base + pos
-                continue
-            raise self.error(line, f"unexpected character {ch!r}")
-        blk.assignments = pending_assign
-        if "E" in seen and not any(w.letter == "M" and w.value in (66.0, 67.0, 68.0) for w in blk.words):
-            # E is the analog channel of M66/M67/M68 (G70 / G76, LinuxCNC's other users, are not modelled)
-            raise self.error(line, "E word with no G70, G76, M66, M67 or M68 to use it")
-        return blk
-
-    def _param_key(self, s: str, pos: int, line: int) -> tuple[str | int, int]:
-        try:
-            return read_param_ref(s, pos, self.params)
-        except ExprError as exc:
-            raise self.error(line, str(exc)) from None
-        except RecursionError:
-            raise self.error(line, "expression nested too deeply") from None
-
-    def _value(self, s: str, pos: int, line: int) -> tuple[float, int]:
-        try:
-            value, end = read_value(s, pos, self.params)
-        except ExprError as exc:
-            raise self.error(line, str(exc)) from None
-        except RecursionError:
-            raise self.error(line, "expression nested too deeply") from None
-        if not math.isfinite(value) or abs(value) > _MAX_NUMBER:
-            raise self.error(line, f"value {value!r} out of range")
-        return value, end
 
 
 @dataclass(slots=True)
@@ -1122,7 +885,7 @@ class _Lines:
         return self._n
 
 
-def _general(lexer: _Lexer, interp: _Interpreter, lines: _Lines, line_start: np.ndarray, i: int, running: bool,
+def _general(lexer: Lexer, interp: _Interpreter, lines: _Lines, line_start: np.ndarray, i: int, running: bool,
              unsupported: tuple[int, str] | None) -> tuple[bool, tuple[int, str] | None]:
     """Run line ``i`` through the general lexer and interpreter; returns (running, unsupported)."""
     raw = lines[i]
@@ -1257,7 +1020,7 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
     text = decode_source(data)
     params = Parameters()
     params.named.update({"_value": 0.0, "_value_returned": 0.0})  # predefined by LinuxCNC
-    lexer = _Lexer(p, params)
+    lexer = Lexer(p, params)
     interp = _Interpreter(p, default_units, params)
     unsupported: tuple[int, str] | None = None
     percent_count = 0
@@ -1273,7 +1036,7 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
         return _finish(p, text, interp, unsupported, default_units, dialect)
     nums = table[:, 1:9]
     # absurd numbers (overflowing to inf) go through the general lexer, which names them
-    huge = np.any(np.abs(nums) > _MAX_NUMBER, axis=1)
+    huge = np.any(np.abs(nums) > MAX_NUMBER, axis=1)
     slow_mask |= huge
     nums[huge] = np.nan
     slow = np.flatnonzero(slow_mask).tolist()
@@ -1328,119 +1091,3 @@ def _finish(p: Path, text: str, interp: _Interpreter, unsupported: tuple[int, st
                    warnings=interp.warnings, unsupported=unsupported, span_resolver=resolve_fast_spans)
 
 
-def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: str = "", dialect: str = "linuxcnc",
-                events: object = None) -> str:
-    """Write a move table (from any dialect) as a plain absolute G-code program.
-
-    Parameters
-    ----------
-    moves : MoveTable
-        The moves, consistent frame; written in the program frame (``end_mm - offset_mm``).
-    units : {"mm", "inch"}
-        Units of the written program (G21 / G20).
-    decimals : int
-        Decimal places of coordinates.
-    name : str
-        Program name for the header comment.
-    dialect : str
-        ``linuxcnc`` (ends with M2), ``fanuc`` (``%`` delimited, M30) or ``grbl``.
-    events : Carried, optional
-        The source's machining words by move (:func:`ilcnc.program.carry.carried_events`), written before and
-        after their moves.
-
-    A block names only the axes its source block named or the move changes: an axis the source never
-    positioned is not invented (the machine stays where it is). A machine-coordinate move (``M91``, ``G53``)
-    is ``G53 G0``/``G53 G1`` with its machine coordinates. A work offset (a Klartext datum shift) is a
-    ``G52`` local offset (LinuxCNC and Fanuc run it; ``G52 X0 Y0 Z0`` before the end); grbl has no ``G52``,
-    so a program with an offset is refused for it.
-
-    Raises
-    ------
-    ValueError
-        A work offset for the ``grbl`` dialect.
-    """
-    from ilcnc.program.model import MoveTable
-
-    assert isinstance(moves, MoveTable)
-    scale = 1.0 / MM_PER_INCH if units == "inch" else 1.0
-    d = decimals
-    out: list[str] = []
-    if dialect == "fanuc":
-        out.append("%")
-    safe = "".join(c for c in name if c not in "()")
-    out.append(f"(converted by ilcnc from {safe})" if safe else "(written by ilcnc)")
-    out.append(f"G90 G94 G17 {'G20' if units == 'inch' else 'G21'}")
-    plane = 17
-    feed = None
-    ends = (moves.end_mm - moves.offset_mm) * scale
-    starts = (moves.start_mm - moves.offset_mm) * scale
-    centers = (moves.center_mm - moves.offset_mm) * scale
-    named = named_axes(moves)
-    offset = (0.0, 0.0, 0.0)
-    last: list[str | None] = [None, None, None]
-
-    def num(v: float) -> str:
-        s = f"{v:.{d}f}"
-        return s[1:] if s.startswith("-") and float(s) == 0.0 else s
-
-    from ilcnc.program.carry import Carried, gcode_blocks
-
-    carried = events if isinstance(events, Carried) else Carried()
-    for i in range(len(moves)):
-        out.extend(gcode_blocks(carried.before.get(i, []), dialect))
-        kind = int(moves.kind[i])
-        machine = bool(moves.flags[i] & FLAG_MACHINE)
-        if not machine:
-            off = (float(moves.offset_mm[i, 0]), float(moves.offset_mm[i, 1]), float(moves.offset_mm[i, 2]))
-            if off != offset:
-                if dialect == "grbl":
-                    raise ValueError(f"line {int(moves.line[i])}: a work offset (datum shift) has no G52 in grbl")
-                out.append("G52 " + " ".join(f"{AXES_LETTERS[a]}{num(off[a] * scale)}" for a in range(3)))
-                offset = off
-                last = [None, None, None]  # a new frame: every written value is new
-        words: list[str] = []
-        if kind >= MOVE_ARC_CW and int(moves.plane[i]) != plane:
-            plane = int(moves.plane[i])
-            words.append(f"G{plane}")
-        if machine:
-            words.append("G53")
-        words.append(("G0", "G1", "G2", "G3")[kind])
-        n_motion_words = len(words)
-        end = moves.end_mm[i] * scale if machine else ends[i]
-        for a in range(3):
-            txt = num(end[a])
-            if machine:
-                if named[i, a]:
-                    words.append(f"{AXES_LETTERS[a]}{txt}")
-                    last[a] = None  # a machine coordinate: the work position is another number
-            elif (named[i, a] and txt != last[a]) or (kind >= MOVE_ARC_CW and a in PLANE_AXES[plane][:2]):
-                words.append(f"{AXES_LETTERS[a]}{txt}")
-                last[a] = txt
-        if len(words) == n_motion_words:
-            # a move that changes no written coordinate is still a block (maybe a command k): write the known
-            # position so the block is kept
-            known = [f"{AXES_LETTERS[a]}{last[a]}" for a in range(3) if last[a] is not None]
-            words.extend(known or [f"{AXES_LETTERS[PLANE_AXES[plane][0]]}{num(end[PLANE_AXES[plane][0]])}"])
-        if kind >= MOVE_ARC_CW:
-            for a in PLANE_AXES[plane][:2]:
-                words.append(f"{'IJK'[a]}{centers[i, a] - starts[i, a]:.{d}f}")
-            if int(moves.turns[i]) > 1:
-                words.append(f"P{int(moves.turns[i])}")
-        if kind != MOVE_RAPID:
-            f = float(moves.feed_mm_min[i]) * scale
-            fs = f"{f:.{max(0, d - 2)}f}"
-            if fs != feed and math.isfinite(f):
-                words.append(f"F{fs}")
-                feed = fs
-        out.append(" ".join(words))
-        out.extend(gcode_blocks(carried.after.get(i, []), dialect))
-    out.extend(gcode_blocks(carried.tail, dialect))
-    if offset != (0.0, 0.0, 0.0):
-        out.append("G52 X0 Y0 Z0")
-    out.append("M30" if dialect == "fanuc" else "M2")
-    if dialect == "fanuc":
-        out.append("%")
-    return "\n".join(out) + "\n"
-
-
-AXES_LETTERS = "XYZ"

@@ -15,9 +15,9 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'inspect': ('InspectReport', 'command_table_csv', 'inspect_program', 'print_report'),
     'linuxcnc': (
         'DEFAULT_CONFIG_DIR', 'DEFAULT_LOCK_TIMEOUT_S', 'LinuxCNCBusyError', 'LockHolder', 'MAX_TIME_SCALE',
-        'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'read_ini', 'run_lock', 'run_program',
-        'scale_program_time', 'scaled_ini_text'
+        'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'run_lock', 'run_program'
     ),
+    'linuxcnc_config': ('ini_in', 'read_ini', 'read_ini_text', 'scale_program_time', 'scaled_ini_text'),
     'measure': ('Measurement', 'interpolate_along_path', 'measure_log', 'measure_points'),
     'report': ('CommandDiff', 'MAX_PLOT_POINTS', 'ReportRun', 'write_report'),
     'state': ('IterationEntry', 'LearnState', 'STATE_FILE', 'sha256_bytes', 'sha256_file'),

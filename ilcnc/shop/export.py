@@ -43,7 +43,7 @@ def _min_decimals(units: str, profile_path: Path | None, override: int | None) -
     if override is not None:
         return override
     if profile_path is not None:
-        from ilcnc.profile.schema import load_profile
+        from ilcnc.profile.load import load_profile
 
         return int(load_profile(profile_path).min_decimals(units))
     return 4 if units == "inch" else 3
@@ -70,7 +70,7 @@ def export_program(
     family = output_family(out)
     default_units = "mm"
     if profile_path is not None:
-        from ilcnc.profile.schema import load_profile
+        from ilcnc.profile.load import load_profile
 
         default_units = load_profile(profile_path).machine.units
     if data is None:
@@ -105,11 +105,11 @@ def export_program(
 
     events = carried_events(program)  # tool, spindle, coolant, dwells, stops, comments; or refused with the line
     if family == "heidenhain":
-        from ilcnc.program.heidenhain import write_klartext
+        from ilcnc.program.heidenhain_write import write_klartext
 
         text = write_klartext(moves, name=_pgm_name(out), units=program.units, decimals=dec, events=events)
     else:
-        from ilcnc.program.gcode import write_gcode
+        from ilcnc.program.gcode_write import write_gcode
 
         try:
             text = write_gcode(moves, units=program.units, decimals=dec, name=program.path.name, events=events)

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from ilcnc.axislog.log import AxisLog
 from ilcnc.errors import LogError
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import Program
 from ilcnc.vcnc.command_error import CommandSignal, error_kind
 

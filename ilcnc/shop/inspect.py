@@ -76,7 +76,7 @@ def inspect_program(path: Path, *, profile_path: Path | None = None, moves_out: 
     default_units = "mm"
     prof = None
     if profile_path is not None:
-        from ilcnc.profile.schema import load_profile
+        from ilcnc.profile.load import load_profile
 
         prof = load_profile(profile_path)
         default_units = prof.machine.units

@@ -25,7 +25,7 @@ from ilcnc.axislog.log import AxisLog
 from ilcnc.axislog.points import MeasuredPoints
 from ilcnc.contour.air import MOVE_AIR, air_above_mm, profile_move_classes
 from ilcnc.errors import LogError
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import FLAG_CUTTER_COMP, MM_PER_INCH, MOVE_RAPID, Program
 from ilcnc.vcnc.command_error import CommandSignal, command_signal_from_run, measurement_gate_mm, reference_command_samples
 
@@ -138,7 +138,8 @@ def measure_log(
     """
     original.require_modelled()
     ran.require_modelled()
-    from ilcnc.contour.search import PathGeometry, contour_error, guess_hints
+    from ilcnc.contour.path import PathGeometry
+    from ilcnc.contour.search import contour_error, guess_hints
     from ilcnc.vcnc.plan import plan_program
 
     src = Path(source)

@@ -47,7 +47,8 @@ from ilcnc.learning.learner import (
     refine_from_errors,
     require_learnable,
 )
-from ilcnc.profile.schema import MachineProfile, load_profile
+from ilcnc.profile.load import load_profile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program import read_program
 from ilcnc.program.model import Program
 from ilcnc.shop.measure import path_position_mm
@@ -514,7 +515,7 @@ def _report_virtual(req: LearnRequest, original: Program, result: Any, best_rec:
 
 def _path_polyline(program: Program) -> NDArray[np.float64]:
     """The programmed feed path as a polyline (arcs sampled), NaN rows where a rapid breaks it."""
-    from ilcnc.contour.search import PathGeometry
+    from ilcnc.contour.path import PathGeometry
 
     path = PathGeometry.from_moves(program.moves)
     pts: list[NDArray[np.float64]] = []

@@ -19,9 +19,10 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'read_stock', 'seed004_cutting', 'seed004_tool', 'sle_frequency_domain_mm', 'sle_per_command_mm',
         'sle_time_domain_mm', 'tool_displacement_mm', 'tooth_force_n'
     ),
+    'discrete': ('DELAY_SNAP', 'DiscreteModel', 'DriveModelError', 'FRICTION_SUBSTEP_S', 'STANDSTILL_MM', 'discrete_model'),
+    'drive_loop': ('path_normals',),
     'drives': (
-        'DiscreteModel', 'DriveModelError', 'DriveStream', 'FRICTION_SUBSTEP_S', 'HAVE_NUMBA', 'axis_response',
-        'cross_coupled_response', 'discrete_model', 'filter_deviation', 'loop_response', 'path_normals',
+        'DriveStream', 'HAVE_NUMBA', 'axis_response', 'cross_coupled_response', 'filter_deviation', 'loop_response',
         'simulate_drives'
     ),
     'lifted': ('DAMPING', 'lifted_error', 'sample_fractions'),
@@ -31,6 +32,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'planned_duration_s'
     ),
     'plan_base': ('EPS_MM', 'PlanLimits', 'move_directions', 'nominal_speed_mm_s'),
+    'plan_kernels': ('BLOCK_SAMPLES', 'arc_table', 'group_kernel', 'group_range', 'group_state'),
     'plan_tp': (
         'ACC_RATIO_NORMAL', 'ACC_RATIO_TANGENTIAL', 'BLEND_DIST_FRACTION', 'GAP_CYCLES', 'KINK_RATIO',
         'LOOKAHEAD_SEGMENTS', 'MIN_SEGMENT_CYCLES', 'TOLERANCE_RATIO', 'plan_linuxcnc'

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc._jit import HAVE_NUMBA, njit
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
 
 __all__ = [
@@ -152,7 +152,7 @@ def command_signal_from_run(
     free : ndarray (K, 3) bool, optional
         ``lifted``: the coordinates the learning may move (default: every axis of the profile).
     """
-    from ilcnc.contour.search import tangent_error
+    from ilcnc.contour.estimates import tangent_error
 
     kk = path.n_commands
     gate = gate_mm if gate_mm is not None else math.inf
@@ -507,7 +507,7 @@ def command_end_tangents(path: Any) -> NDArray[np.float64]:
     move the normalised sum of the two unit directions (what the central
     difference of the reference samples either side of the vertex gives at
     a constant feed: the bisector at a sharp corner). A zero-length command
-    gets 0 (:func:`ilcnc.contour.search.tangent_error` then uses the nearest
+    gets 0 (:func:`ilcnc.contour.estimates.tangent_error` then uses the nearest
     defined tangent).
 
     Parameters

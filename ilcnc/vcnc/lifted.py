@@ -175,7 +175,8 @@ def lifted_error(
     from scipy.sparse.linalg import spsolve
 
     from ilcnc.profile.schema import AXIS_NAMES
-    from ilcnc.vcnc.drives import discrete_model, filter_deviation
+    from ilcnc.vcnc.discrete import discrete_model
+    from ilcnc.vcnc.drives import filter_deviation
 
     moves = program.moves
     nm = len(moves)

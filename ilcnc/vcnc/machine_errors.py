@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.errors import MapError, ProfileError
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import Program
 
 __all__ = ["ErrorSources", "wall_normals"]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.geometry import arc_sweep_rad
 from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
 

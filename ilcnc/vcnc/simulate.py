@@ -25,7 +25,7 @@ from ilcnc._jit import njit
 from ilcnc.axislog.log import AxisLog
 from ilcnc.contour.air import MOVE_CUT, MOVE_NOT_FED, CuttingRule, air_above_mm, profile_move_classes
 from ilcnc.errors import InputError
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_LINE, Program
 from ilcnc.vcnc.machine_errors import ErrorSources
 from ilcnc.vcnc.plan import Reference, plan_program
@@ -161,7 +161,8 @@ def simulate_program(
         The program has unsupported constructs, or ``against`` does not
         match it move for move.
     """
-    from ilcnc.contour.search import PathGeometry, contour_error
+    from ilcnc.contour.path import PathGeometry
+    from ilcnc.contour.search import contour_error
     from ilcnc.vcnc.drives import simulate_drives
 
     program.require_modelled()

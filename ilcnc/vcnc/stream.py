@@ -28,7 +28,7 @@ import numpy as np
 
 from ilcnc.contour.air import CuttingRule
 from ilcnc.errors import InputError
-from ilcnc.profile.schema import MachineProfile
+from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import Program
 from ilcnc.vcnc.command_error import CommandSignal, PathWeightedSums, finish_signal
 from ilcnc.vcnc.plan import DEFAULT_CHUNK_SAMPLES, plan_chunks
@@ -139,7 +139,8 @@ def simulate_streamed(
         The profile cannot run chunk by chunk (:func:`stream_unsupported`).
     """
     from ilcnc.contour.air import air_above_mm, profile_move_classes
-    from ilcnc.contour.search import PathGeometry, contour_error
+    from ilcnc.contour.path import PathGeometry
+    from ilcnc.contour.search import contour_error
     from ilcnc.vcnc.drives import DriveStream
     from ilcnc.vcnc.simulate import FeedStats, against_slack_mm, check_against, check_travel, moves_on_target
 

@@ -18,8 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.learning.identify import identify_file, identify_step
-from ilcnc.profile.schema import FirstOrderDelayDrive, load_profile
+from ilcnc.learning.identify import identify_step
+from ilcnc.learning.step_files import identify_file
+from ilcnc.profile.load import load_profile
+from ilcnc.profile.sections import FirstOrderDelayDrive
 from ilcnc.shop import linuxcnc as lcnc
 from ilcnc.vcnc.drives import axis_response
 

@@ -16,7 +16,7 @@ import pytest
 
 from ilcnc.cli import app
 from ilcnc.learning.learner import best_stats, grew
-from ilcnc.profile.schema import load_profile
+from ilcnc.profile.load import load_profile
 from ilcnc.shop.state import LearnState
 from tests.integration._lcnc import PROFILE, REPO, cli_json, needs_linuxcnc, runner
 

@@ -34,6 +34,7 @@ from ilcnc.axislog.halsampler import commands_from_lines, read_halsampler
 from ilcnc.errors import InputError
 from ilcnc.program import read_program
 from ilcnc.shop import linuxcnc as lcnc
+from ilcnc.shop import linuxcnc_config as lcnc_config
 
 REPO = Path(__file__).resolve().parents[2]
 SQUARE = REPO / "samples" / "own" / "square.ngc"
@@ -129,7 +130,7 @@ def test_commanded_path_passes_corners_within_g64_tolerance(square_runs: dict[st
 
 @_mark
 def test_actual_lags_commanded_by_v_over_kv(square_runs: dict[str, lcnc.RunResult]) -> None:
-    kv = float(lcnc.read_ini(CONFIG)["ILCNC"]["KV"])
+    kv = float(lcnc_config.read_ini(CONFIG)["ILCNC"]["KV"])
     v = 3000.0 / 60.0  # F3000 in mm/s
     log = square_runs["k1"].log
     dt = square_runs["k1"].period_s
@@ -216,7 +217,7 @@ def test_scale_program_time_keeps_lines_and_scales_feeds_and_dwells() -> None:
         "G1 X[fix[2.5]] F 100 Y1\n"
         "%\n"
     )
-    out = lcnc.scale_program_time(src, 4)
+    out = lcnc_config.scale_program_time(src, 4)
     assert out.count("\n") == src.count("\n")
     assert out.splitlines() == [
         "(F100 in a comment)",
@@ -230,7 +231,7 @@ def test_scale_program_time_keeps_lines_and_scales_feeds_and_dwells() -> None:
         "G1 X[fix[2.5]] F400 Y1",
         "%",
     ]
-    assert lcnc.scale_program_time(src, 1) == src
+    assert lcnc_config.scale_program_time(src, 1) == src
 
 
 def test_scaled_ini_text() -> None:
@@ -239,14 +240,15 @@ def test_scaled_ini_text() -> None:
         "[TRAJ]\nMAX_LINEAR_VELOCITY = 100\nMAX_LINEAR_ACCELERATION = 1000\n# MAX_VELOCITY = 5\n"
         "[JOINT_0]\nMAX_VELOCITY = 100\nFERROR = 10\nHOME_SEARCH_VEL = 0\n"
     )
-    out = lcnc.read_ini_text(lcnc.scaled_ini_text(ini, 4, {"JOINT_0": {"FERROR": 1, "MIN_FERROR": 0.5}, "NEW": {"A": 1}}))
+    overrides = {"JOINT_0": {"FERROR": 1, "MIN_FERROR": 0.5}, "NEW": {"A": 1}}
+    out = lcnc_config.read_ini_text(lcnc_config.scaled_ini_text(ini, 4, overrides))
     assert out["EMCMOT"]["SERVO_PERIOD"] == "250000"
     assert out["ILCNC"] == {"KV": "120", "LP_GAIN": "0.181"}
     assert out["TRAJ"] == {"MAX_LINEAR_VELOCITY": "400", "MAX_LINEAR_ACCELERATION": "16000"}
     assert out["JOINT_0"] == {"MAX_VELOCITY": "400", "FERROR": "1", "HOME_SEARCH_VEL": "0", "MIN_FERROR": "0.5"}
     assert out["NEW"] == {"A": "1"}
     with pytest.raises(InputError, match="divisible"):
-        lcnc.scaled_ini_text(ini, 3)
+        lcnc_config.scaled_ini_text(ini, 3)
 
 
 _HALSAMPLER = """\

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcnc.contour.search import PathGeometry, contour_error, guess_hints
+from ilcnc.contour.path import PathGeometry
+from ilcnc.contour.search import contour_error, guess_hints
 from ilcnc.program import read_program
 from ilcnc.vcnc.plan import PlanLimits, plan_moves
 from tests.conftest import REPO, SAMPLES

@@ -1,0 +1,312 @@
+"""A LinuxCNC configuration for one run: its INI read and rewritten, and the program's time scaled.
+
+LinuxCNC INIs repeat keys and keep comments, so they are handled line by line (:func:`read_ini`,
+:func:`scaled_ini_text`). A run slowed by ``--time-scale k`` (a slow machine keeps up with the servo thread)
+has every time and rate of the INI and every feed, dwell and time word of the program scaled by ``k``
+(:func:`scale_program_time`), so the motion is the same path at 1/k of the speed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+from collections.abc import Mapping
+from pathlib import Path
+
+from ilcnc.errors import InputError
+from ilcnc.fileio import read_bytes
+
+__all__ = ["ini_in", "read_ini", "read_ini_text", "scale_program_time", "scaled_ini_text"]
+
+
+# ---------------------------------------------------------------------------
+# INI handling (line based: LinuxCNC INIs repeat keys and keep comments)
+# ---------------------------------------------------------------------------
+
+_SECTION = re.compile(r"^\s*\[([^\]]+)\]\s*$")
+_KEYVAL = re.compile(r"^(\s*)([A-Za-z0-9_]+)(\s*=\s*)(.*?)(\s*)$")
+
+
+def read_ini(path: str | Path) -> dict[str, dict[str, str]]:
+    """The INI file as ``{SECTION: {KEY: value}}`` (first value of a repeated key; ``#``/``;`` comments skipped)."""
+    p = Path(path)
+    if p.is_dir():
+        p = ini_in(p)
+    return read_ini_text(read_bytes(p).decode("utf-8", errors="replace"))
+
+
+def _fmt(v: float) -> str:
+    """A number for an INI or G-code word: integers without a dot, others with up to 12 significant digits."""
+    if v == int(v) and abs(v) < 1e15:
+        return str(int(v))
+    s = f"{v:.12g}"
+    if "e" in s or "E" in s:
+        s = f"{v:.9f}".rstrip("0").rstrip(".")
+    return s
+
+
+def _scale_factor(section: str, key: str, k: int) -> float | None:
+    """How an INI value scales with time scale k (None: unchanged). SERVO_PERIOD is handled apart."""
+    key_u = key.upper()
+    if section.upper() == "ILCNC" and key_u == "KV":
+        return float(k)
+    if "JERK" in key_u:
+        return float(k) ** 3
+    if "ACCEL" in key_u:
+        return float(k) ** 2
+    if "VEL" in key_u:
+        return float(k)
+    return None
+
+
+def scaled_ini_text(
+    text: str,
+    time_scale: int = 1,
+    overrides: Mapping[str, Mapping[str, object]] | None = None,
+    *,
+    ini_path: str | Path | None = None,
+) -> str:
+    """The INI text with ``overrides`` applied, then scaled for ``time_scale`` (see module docstring).
+
+    Overrides are real-time values (``{"JOINT_0": {"FERROR": 1}}``); a key that
+    is not in its section is appended to it, a missing section at the end.
+    """
+    k = int(time_scale)
+    pending = {sec.upper(): {str(key).upper(): str(v) for key, v in vals.items()} for sec, vals in (overrides or {}).items()}
+    seen: dict[str, set[str]] = {}
+    out: list[str] = []
+    section = ""
+
+    def flush(sec: str) -> None:
+        for key, v in pending.get(sec.upper(), {}).items():
+            if key not in seen.get(sec.upper(), set()):
+                out.append(f"{key} = {_scaled_value(sec, key, v, k, ini_path)}")
+                seen.setdefault(sec.upper(), set()).add(key)
+
+    for raw in text.splitlines():
+        m = _SECTION.match(raw)
+        if m:
+            flush(section)
+            section = m.group(1).strip()
+            out.append(raw)
+            continue
+        s = raw.strip()
+        m = _KEYVAL.match(raw)
+        if not s or s[0] in "#;" or m is None:
+            out.append(raw)
+            continue
+        key = m.group(2)
+        value = m.group(4)
+        ov = pending.get(section.upper(), {})
+        if key.upper() in ov:
+            value = ov[key.upper()]
+            seen.setdefault(section.upper(), set()).add(key.upper())
+        out.append(f"{m.group(1)}{key}{m.group(3)}{_scaled_value(section, key, value, k, ini_path)}")
+    flush(section)
+    for sec, vals in pending.items():
+        if sec not in seen and not any(_SECTION.match(r) and _SECTION.match(r).group(1).strip().upper() == sec for r in out):  # type: ignore[union-attr]
+            out.append(f"[{sec}]")
+            for key, v in vals.items():
+                out.append(f"{key} = {_scaled_value(sec, key, v, k, ini_path)}")
+    return "\n".join(out) + "\n"
+
+
+def _scaled_value(section: str, key: str, value: str, k: int, ini_path: str | Path | None) -> str:
+    if k == 1:
+        return value
+    if section.upper() == "EMCMOT" and key.upper() == "SERVO_PERIOD":
+        try:
+            ns = int(float(value))
+        except ValueError:
+            raise InputError(ini_path, None, f"[EMCMOT] SERVO_PERIOD {value!r} is not a number of nanoseconds") from None
+        if ns % k:
+            raise InputError(ini_path, None, f"[EMCMOT] SERVO_PERIOD {ns} ns is not divisible by the time scale {k}")
+        return str(ns // k)
+    f = _scale_factor(section, key, k)
+    if f is None:
+        return value
+    try:
+        v = float(value)
+    except ValueError:
+        return value  # not a number (e.g. a comment-like value): leave it
+    return _fmt(v * f)
+
+
+# ---------------------------------------------------------------------------
+# Time scaling of the program text
+# ---------------------------------------------------------------------------
+
+_NUMBER = re.compile(r"[+-]?[ \t]*(?:\d[\d \t]*(?:\.[\d \t]*)?|\.[ \t]*\d[\d \t]*)")
+_FUNC = re.compile(r"(?i)(atan|abs|acos|asin|cos|exp|fix|fup|round|ln|sin|sqrt|tan|exists)[ \t]*(?=\[)")
+_DWELL_G = (4.0, 82.0, 86.0, 88.0, 89.0)
+
+
+class _Unscannable(Exception):
+    pass
+
+
+def _skip_bracket(s: str, i: int) -> int:
+    """Index after the ``[...]`` expression starting at ``s[i] == '['`` (nested)."""
+    depth = 0
+    while i < len(s):
+        c = s[i]
+        if c == "[":
+            depth += 1
+        elif c == "]":
+            depth -= 1
+            if depth == 0:
+                return i + 1
+        elif c == "(":
+            j = s.find(")", i)
+            if j < 0:
+                raise _Unscannable
+            i = j
+        i += 1
+    raise _Unscannable
+
+
+def _scan_value(s: str, i: int) -> int:
+    """Index after the real value starting at ``i`` (number, #parameter, [expression], function)."""
+    while i < len(s) and s[i] in " \t":
+        i += 1
+    if i >= len(s):
+        raise _Unscannable
+    c = s[i]
+    if c == "[":
+        return _skip_bracket(s, i)
+    if c == "#":
+        i += 1
+        while i < len(s) and s[i] in " \t":
+            i += 1
+        if i < len(s) and s[i] == "<":
+            j = s.find(">", i)
+            if j < 0:
+                raise _Unscannable
+            return j + 1
+        return _scan_value(s, i)
+    m = _FUNC.match(s, i)
+    if m:
+        j = _skip_bracket(s, m.end())
+        if m.group(1).lower() == "atan":  # ATAN[a]/[b]
+            k = j
+            while k < len(s) and s[k] in " \t":
+                k += 1
+            if k < len(s) and s[k] == "/":
+                k += 1
+                while k < len(s) and s[k] in " \t":
+                    k += 1
+                if k < len(s) and s[k] == "[":
+                    return _skip_bracket(s, k)
+        return j
+    m = _NUMBER.match(s, i)
+    if m:
+        return m.end()
+    raise _Unscannable
+
+
+def _scale_line(line: str, k: int) -> str:
+    """One block with its F words x k and its dwell P words / k (comments and O-word lines untouched)."""
+    body = line
+    lead = re.match(r"[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+(?:\.\d*)?[ \t]*)?", body)
+    i = lead.end() if lead else 0
+    if i < len(body) and body[i] in "Oo%":
+        return line
+    words: list[tuple[str, int, int]] = []  # (letter, value start, value end)
+    try:
+        while i < len(body):
+            c = body[i]
+            if c in " \t\r":
+                i += 1
+            elif c == "(":
+                j = body.find(")", i)
+                if j < 0:
+                    return line
+                i = j + 1
+            elif c == ";":
+                break
+            elif c == "#":  # parameter setting #n = value
+                j = _scan_value(body, i)
+                while j < len(body) and body[j] in " \t":
+                    j += 1
+                if j >= len(body) or body[j] != "=":
+                    raise _Unscannable
+                i = _scan_value(body, j + 1)
+            elif c.isalpha():
+                j = _scan_value(body, i + 1)
+                words.append((c.upper(), i + 1, j))
+                i = j
+            else:
+                raise _Unscannable
+    except _Unscannable:
+        pass  # leave the rest as it is: LinuxCNC will say what is wrong with it
+    dwell = False
+    for letter, a, b in words:
+        if letter == "G":
+            with contextlib.suppress(ValueError):
+                dwell = dwell or float(body[a:b].replace(" ", "").replace("\t", "")) in _DWELL_G
+    edits: list[tuple[int, int, str]] = []
+    for letter, a, b in words:
+        if letter == "F" or (letter == "P" and dwell):
+            raw = body[a:b]
+            trail = len(raw) - len(raw.rstrip(" \t"))
+            b -= trail  # keep the spacing after the number
+            raw = body[a:b]
+            op = "*" if letter == "F" else "/"
+            try:
+                v = float(raw.replace(" ", "").replace("\t", ""))
+            except ValueError:
+                edits.append((a, b, f"[{raw.strip()}{op}{k}]"))
+                continue
+            edits.append((a, b, _fmt(v * k if letter == "F" else v / k)))
+    for a, b, new in reversed(edits):
+        body = body[:a] + new + body[b:]
+    return body
+
+
+def scale_program_time(text: str, time_scale: int) -> str:
+    """The program with every F word multiplied by ``time_scale`` and dwell P words divided by it.
+
+    Line structure (and so every source line number) is kept; comments, ``%``
+    and O-word lines are untouched. F words given as parameters or
+    expressions become ``[... * k]``. Feed-per-revolution (G95) and
+    spindle-synchronised moves are not time-scaled (the simulation has no
+    spindle); F words in external subroutine files are not scaled either.
+    """
+    k = int(time_scale)
+    if k == 1:
+        return text
+    parts = text.split("\n")
+    return "\n".join(_scale_line(p, k) for p in parts)
+
+
+def ini_in(config: Path) -> Path:
+    """The INI of a configuration: the file itself, the folder's ``sim.ini``, or its only ``.ini``."""
+    if config.is_file():
+        return config
+    if not config.is_dir():
+        raise InputError(config, None, "LinuxCNC configuration directory not found")
+    inis = sorted(config.glob("*.ini"))
+    if (config / "sim.ini").is_file():
+        return config / "sim.ini"
+    if len(inis) != 1:
+        raise InputError(config, None, f"expected one .ini file in the configuration directory, found {len(inis)}")
+    return inis[0]
+
+
+def read_ini_text(text: str) -> dict[str, dict[str, str]]:
+    """:func:`read_ini` on a string."""
+    out: dict[str, dict[str, str]] = {}
+    section = ""
+    for raw in text.splitlines():
+        s = raw.strip()
+        if not s or s[0] in "#;":
+            continue
+        m = _SECTION.match(raw)
+        if m:
+            section = m.group(1).strip()
+            out.setdefault(section, {})
+            continue
+        m = _KEYVAL.match(raw)
+        if m:
+            out.setdefault(section, {}).setdefault(m.group(2), m.group(4))
+    return out
