@@ -228,7 +228,7 @@ def _stage_simulate(program: Path, profile: Path) -> dict[str, Any]:
     """What ``ilcnc simulate PROG --profile P`` runs (no ``--out``: the figures only, chunk by chunk)."""
     from ilcnc.profile.load import load_profile
     from ilcnc.program import read_program
-    from ilcnc.vcnc.stream import simulate_figures
+    from ilcnc.vcnc.run import simulate_figures
 
     prof = load_profile(profile)
     simulate_figures(read_program(WARM_UP), prof)

@@ -15,7 +15,7 @@ from typing import Annotated, NoReturn
 import typer
 
 from ilcnc import __version__
-from ilcnc.errors import IlcncError, InputError
+from ilcnc.errors import IlcncError, InputError, UsageError
 
 app = typer.Typer(
     add_completion=False,
@@ -41,12 +41,24 @@ def _root(
     _state["debug"] = debug
 
 
-def _fail(exc: BaseException) -> NoReturn:
+def _fail(exc: IlcncError) -> NoReturn:
     if _state["debug"]:
         raise exc
-    msg = exc.format() if hasattr(exc, "format") and isinstance(exc, IlcncError) else str(exc)
-    typer.echo(f"error: {msg}", err=True)
-    raise typer.Exit(1)
+    typer.echo(f"error: {exc.format()}", err=True)
+    raise typer.Exit(exc.exit_code)
+
+
+def _finite(option: str, value: float | None, *, lo: float | None = None, open_lo: bool = False,
+            hi: float | None = None, unit: str = "") -> None:
+    """Refuse a numeric option that is NaN, infinite or outside its range (a :class:`UsageError`, exit 2)."""
+    if value is None:
+        return
+    below = lo is not None and (value <= lo if open_lo else value < lo)
+    above = hi is not None and value > hi
+    if not math.isfinite(value) or below or above:
+        rng = "a finite number" + ("" if lo is None else f" {'>' if open_lo else '>='} {lo:g}")
+        rng += "" if hi is None else f"{' and' if lo is not None else ''} <= {hi:g}"
+        raise UsageError(option, f"must be {rng}{' ' + unit if unit else ''}, got {value:g}")
 
 
 def _console():
@@ -273,8 +285,8 @@ def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_
 def _simulate(prog, prof, orig, samples: bool, progress=None):
     """A run of the virtual CNC: every sample when they are written (``samples``), else only its figures
     (chunk by chunk where the profile allows: bounded memory, :mod:`ilcnc.vcnc.stream`)."""
+    from ilcnc.vcnc.run import simulate_figures
     from ilcnc.vcnc.simulate import simulate_program
-    from ilcnc.vcnc.stream import simulate_figures
 
     if samples:
         return simulate_program(prog, prof, against=orig, progress=progress)
@@ -480,6 +492,9 @@ def identify(
         typer.echo("error: --write needs --profile (the profile to update)", err=True)
         raise typer.Exit(2)
     try:
+        _finite("--step", step_size)
+        _finite("--step-time", step_time, lo=0.0)
+        _finite("--period-s", period, lo=0.0, open_lo=True, hi=1.0, unit="s")  # a servo period: µs to ms
         ident = identify_file(step, axis=axis.lower(), model=model, signal=signal, step=step_size, fmt=fmt, units=units,
                               profile=profile, period_s=period, step_time_s=step_time)
         if plot is not None:
@@ -632,6 +647,10 @@ def batch(
     """Learn every part of a folder or manifest; exit 1 if any part failed or regressed."""
     from ilcnc.shop import batch as batch_mod
     try:
+        if scheduler is not None and "://" not in scheduler:
+            raise UsageError("--scheduler", f"must be a Dask scheduler address such as tcp://host:8786, got {scheduler!r}")
+        if profile is not None and not profile.is_file():
+            raise InputError(profile, None, "file not found" if not profile.exists() else "is not a file")
         if out.exists() and not out.is_dir():
             raise InputError(out, None, "exists and is not a folder")
         out.mkdir(parents=True, exist_ok=True)

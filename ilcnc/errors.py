@@ -1,8 +1,10 @@
-"""The small hierarchy of ilcnc's own exceptions.
+"""The small hierarchy of ilcnc's own exceptions: one root, one line each, an exit code each.
 
-Every error a user can cause by bad input is an :class:`InputError`: its
-message is one line naming the file, the line (when known) and the problem,
-which is exactly what the command line prints before exiting with code 1.
+Every error a user can cause is an :class:`IlcncError`; :meth:`IlcncError.format` is the one
+line the command line prints (``error: ...``) and :attr:`IlcncError.exit_code` the code it
+exits with: 1 for bad input (:class:`InputError`: the file, the line when known, the problem),
+2 for a bad use of the command line (:class:`UsageError`: the option and what is wrong with
+it). Anything else that escapes a command is a defect of ilcnc, not of the input.
 """
 
 from __future__ import annotations
@@ -12,6 +14,32 @@ from pathlib import Path
 
 class IlcncError(Exception):
     """Base class of every error raised on purpose by ilcnc."""
+
+    #: What the command line exits with.
+    exit_code: int = 1
+
+    def format(self) -> str:
+        """Return the one-line message the command line prints."""
+        return " ".join(str(self).split())
+
+
+class UsageError(IlcncError):
+    """An option out of its range, or options that do not go together (exit code 2, as for typer's own).
+
+    Parameters
+    ----------
+    option : str
+        The option, as typed (``--period-s``).
+    problem : str
+        What is wrong with it, completing the sentence (``must be a number of seconds > 0, got -1``).
+    """
+
+    exit_code = 2
+
+    def __init__(self, option: str, problem: str) -> None:
+        self.option = option
+        self.problem = " ".join(str(problem).split())
+        super().__init__(f"{option} {self.problem}")
 
 
 class InputError(IlcncError):

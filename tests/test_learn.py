@@ -11,12 +11,12 @@ import pytest
 from ilcnc.contour.path import PathGeometry
 from ilcnc.contour.search import contour_error
 from ilcnc.errors import ProfileError
+from ilcnc.learning.guard import grew
 from ilcnc.learning.laws import PidAceLaw, PLaw, SecondOrderLaw, first_markov_per_s, make_law
 from ilcnc.learning.learner import (
     UpdateShaper,
     arc_start_constraint,
     clip_corrections,
-    grew,
     keep_arcs_valid,
     keep_moves_forward,
     learn_virtual,

@@ -53,7 +53,8 @@ import pytest
 
 from ilcnc.errors import ProgramError, UnsupportedError
 from ilcnc.program import read_program
-from ilcnc.program.model import MM_PER_INCH, MOVE_LINE, Program
+from ilcnc.program.model import MOVE_LINE, Program
+from ilcnc.units import MM_PER_INCH
 
 from .conftest import sample_files
 

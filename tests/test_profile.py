@@ -13,7 +13,7 @@ import pytest
 from ilcnc.errors import InputError, ProfileError
 from ilcnc.profile.docs import schema_markdown
 from ilcnc.profile.load import default_profile, load_profile, profile_from_dict
-from ilcnc.profile.schema import AXIS_NAMES, SPECS
+from ilcnc.profile.schema import SPECS
 from ilcnc.profile.sections import (
     DRIVE_MODELS,
     FirstOrderDelayDrive,
@@ -24,6 +24,7 @@ from ilcnc.profile.sections import (
     TransferFunctionDrive,
     has_position_loop,
 )
+from ilcnc.units import AXIS_NAMES
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"

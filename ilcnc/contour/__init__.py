@@ -13,6 +13,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'cutting_rule', 'cutting_samples', 'move_classes', 'profile_cutting_rule', 'profile_move_classes'
     ),
     'estimates': ('CommandError', 'per_command_error', 'sample_command', 'summary', 'tangent_error'),
+    'figures': ('ErrorFigures',),
     'path': ('FAR_MM', 'PathGeometry', 'TWO_PI', 'WorkBuffers'),
     'search': ('ContourError', 'DEFAULT_CHUNK', 'DEFAULT_WINDOW', 'REACH_FACTOR', 'contour_error', 'guess_hints'),
 }

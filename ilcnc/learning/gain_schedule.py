@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ilcnc.profile.schema import AXIS_NAMES
 from ilcnc.profile.sections import MachineProfile, PFfFrictionDrive
+from ilcnc.units import AXIS_NAMES
 
 __all__ = ["DEFAULT_DK", "ScheduleResult", "schedule_gains", "seed001_standin_program"]
 

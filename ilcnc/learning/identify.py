@@ -583,7 +583,7 @@ def _identify_step(
     med = float(np.median(dt))
     period = float(period_s) if period_s is not None else med
     if not period > 0:
-        raise ValueError(f"period_s must be > 0, got {period_s}")
+        raise InputError(None, None, f"the sample period must be a number of seconds > 0, got {period_s}")
     warnings: list[str] = []
     jitter = float(np.max(np.abs(dt - med))) / med
     if jitter > 0.05:

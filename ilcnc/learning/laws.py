@@ -35,13 +35,14 @@ from numpy.typing import ArrayLike, NDArray
 from ilcnc.errors import ProfileError
 from ilcnc.profile.sections import LearningSection, MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
+from ilcnc.units import AXIS_NAMES
 
 __all__ = [
     "AXES", "LAWS", "LearningLaw", "PLaw", "PidAceLaw", "SecondOrderLaw", "ccc_error_map", "cut_runs",
     "first_markov_per_s", "make_law"
 ]
 
-AXES = ("x", "y", "z")
+AXES = AXIS_NAMES
 
 def cut_runs(program: Program) -> NDArray[np.int64]:
     """Run number of each command: consecutive commands with no rapid between them share a run.

@@ -31,7 +31,7 @@ exceptions: ``converged`` (max error below ``learning.stop_tolerance_mm``),
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -47,9 +47,12 @@ from ilcnc.contour.air import (
     profile_cutting_rule,
     profile_move_classes,
 )
+from ilcnc.contour.figures import ErrorFigures
 from ilcnc.errors import UnsupportedError
 from ilcnc.learning.feed import FeedLaw, FeedOutcome, move_errors_mm, move_times_s
+from ilcnc.learning.guard import LearningGuard, best_stats
 from ilcnc.learning.laws import AXES, LearningLaw, cut_runs, make_law
+from ilcnc.outcomes import GuardVerdict, LearnStatus, ModelStepEnd
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import (
     FLAG_CUTTER_COMP,
@@ -73,16 +76,6 @@ __all__ = [
 #: Flags of commands whose end point is never corrected.
 # (a G-code word with a parameter is corrected as [expression+c]; Klartext Q words are no commands)
 FROZEN_FLAGS = FLAG_REPEATED | FLAG_POLAR | FLAG_MACHINE | FLAG_HOME | FLAG_DERIVED
-
-#: Relative growth of the RMS or max error that the guard counts as "grew"
-#: (plus half the resolution, at least :data:`GROWTH_ABS_MM`): rounding of the
-#: written numbers alone moves the error by a fraction of the resolution, and a
-#: maximum pinned at a spot no end point can fix (a rapid's corner, a plunge)
-#: wobbles by a few tenths of a percent from run to run (measured on LinuxCNC:
-#: 412.3 -> 413.5 µm while the RMS fell). The reference is the best value of
-#: all kept iterations, so a creep below the tolerance cannot accumulate.
-GROWTH_REL = 5e-3
-GROWTH_ABS_MM = 1e-5
 
 #: Relative RMS improvement below which learning has "stopped improving".
 STALL_REL = 0.01
@@ -345,7 +338,7 @@ def clip_corrections(
 # ---------------------------------------------------------------------------------------------
 
 
-@dataclass(slots=True, eq=False)
+@dataclass(slots=True, eq=False, kw_only=True)
 class IterationRecord:
     """One learning iteration: the program run and what it measured.
 
@@ -375,7 +368,7 @@ class IterationRecord:
     shares : dict
         Each error source's ``max`` / ``mean`` / ``rms``, mm, when geometric or
         cutting errors are on (``SimulationResult.shares``).
-    air_stats : dict or None
+    air_stats : ErrorFigures or None
         The air moves' ``max`` / ``mean`` / ``rms``, mm (reported apart, never judged).
     cycle_time_s : float or None
         Cycle time of this iteration's program, s (a part is judged by its error without longer machining).
@@ -384,7 +377,7 @@ class IterationRecord:
     """
 
     iteration: int
-    stats: dict[str, float]
+    stats: ErrorFigures
     corrections_mm: NDArray[np.float64]
     signal: CommandSignal | None
     clipped: list[Clip] = field(default_factory=list)
@@ -394,15 +387,15 @@ class IterationRecord:
     run: Any = None
     timings_s: dict[str, float] = field(default_factory=dict)
     shares: dict[str, dict[str, float]] = field(default_factory=dict)
-    air_stats: dict[str, float] | None = None
+    air_stats: ErrorFigures | None = None
     cycle_time_s: float | None = None
     feed_scale: NDArray[np.float64] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        out = {"iteration": self.iteration, "contour_error_mm": {k: self.stats[k] for k in ("max", "mean", "rms")},
+        out = {"iteration": self.iteration, "contour_error_mm": self.stats.to_json(),
                "clipped": len(self.clipped), "kept": self.kept, "gain_scale": self.gain_scale}
         if self.air_stats is not None:
-            out["air_error_mm"] = dict(self.air_stats)
+            out["air_error_mm"] = self.air_stats.to_json()
         if self.cycle_time_s is not None:
             out["cycle_time_s"] = self.cycle_time_s
         if self.shares:
@@ -412,7 +405,7 @@ class IterationRecord:
         return out
 
 
-@dataclass(slots=True, eq=False)
+@dataclass(slots=True, eq=False, kw_only=True)
 class LearnResult:
     """Outcome of a learning run.
 
@@ -440,7 +433,7 @@ class LearnResult:
 
     program: Program
     iterations: list[IterationRecord]
-    status: str
+    status: LearnStatus
     message: str
     best: int
     frozen: int = 0
@@ -476,27 +469,6 @@ class LearnResult:
             "cutting_rule": None if self.cutting is None else self.cutting.to_json(),
             "feed": None if self.feed is None else self.feed.to_json(),
         }
-
-
-def best_stats(stats: list[dict[str, float]]) -> dict[str, float]:
-    """The lowest RMS and the lowest max over kept iterations (the guard's reference)."""
-    return {"rms": min(s["rms"] for s in stats), "max": min(s["max"] for s in stats)}
-
-
-def grew(new: dict[str, float], best: dict[str, float], *, resolution_mm: float = 0.0) -> list[str]:
-    """The statistics (``rms``, ``max``) of ``new`` that grew beyond ``best``.
-
-    A growth within :data:`GROWTH_REL` of the value plus half the machine's
-    resolution (at least :data:`GROWTH_ABS_MM`) does not count: rounding the
-    written numbers to the resolution alone moves the error that much, and a
-    maximum pinned at a spot no end point can fix wobbles by as little.
-    """
-    tol_abs = max(GROWTH_ABS_MM, 0.5 * resolution_mm)
-    out = []
-    for key in ("rms", "max"):
-        if new[key] > best[key] * (1.0 + GROWTH_REL) + tol_abs:
-            out.append(key)
-    return out
 
 
 @dataclass(slots=True)
@@ -597,7 +569,20 @@ class ModelSteps:
 
     made: int
     predicted_rms_mm: list[float]
-    reason: str
+    reason: ModelStepEnd
+
+    def why(self, law: str, error: str) -> str:
+        """Why the steps ended, as the end of a note (empty when all were made); every state handled."""
+        match self.reason:
+            case ModelStepEnd.STEPS:
+                return ""
+            case ModelStepEnd.NO_GAIN:
+                return ": the next would not lower the predicted error"
+            case ModelStepEnd.LAW:
+                return f": the {law} law keeps a history"
+            case ModelStepEnd.KIND:
+                return f": the virtual CNC does not predict the {error} estimate"
+        raise AssertionError(f"unhandled model-step end {self.reason!r}")
 
 
 def virtual_run(original: Program, u_mm: NDArray[np.float64] | None, profile: MachineProfile, kind: str, *,
@@ -608,22 +593,18 @@ def virtual_run(original: Program, u_mm: NDArray[np.float64] | None, profile: Ma
     ``sources`` are the profile's error sources when already loaded (:class:`ilcnc.vcnc.machine_errors.ErrorSources`);
     ``free`` the coordinates the learning may move (the ``lifted`` estimate solves for those alone).
     """
-    from ilcnc.vcnc.machine_errors import ErrorSources
-    from ilcnc.vcnc.simulate import simulate_program
-    from ilcnc.vcnc.stream import simulate_streamed, stream_unsupported
+    from ilcnc.vcnc.run import run_virtual
+    from ilcnc.vcnc.stream import StreamedRun
 
     prog = original
     if u_mm is not None and np.any(u_mm):
         _text, prog = program_with_corrections(original, u_mm, profile)
-    against = None if prog is original else original
     gate = measurement_gate_mm(profile)
-    if sources is None:
-        sources = ErrorSources.from_profile(profile)
-    if stream_unsupported(profile, kind, sources=sources) is None:
-        st = simulate_streamed(prog, profile, against=against, gate_mm=gate)
-        return st, st.signal
-    sim = simulate_program(prog, profile, against=against, sources=sources)
-    return sim, signal_of_simulation(sim, original, kind, gate, profile=profile, free=free)
+    run = run_virtual(prog, profile, against=None if prog is original else original, kind=kind, sources=sources,
+                      gate_mm=gate)
+    if isinstance(run, StreamedRun):
+        return run, run.signal
+    return run, signal_of_simulation(run, original, kind, gate, profile=profile, free=free)
 
 
 def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], measured: CommandSignal,
@@ -648,11 +629,11 @@ def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], mea
 
     pred = [rms(measured.e_mm, measured.valid)]
     if steps <= 0:
-        return u_step, clips_step, ModelSteps(0, pred, "steps")
+        return u_step, clips_step, ModelSteps(0, pred, ModelStepEnd.STEPS)
     if learner.law.memory != 1:
-        return u_step, clips_step, ModelSteps(0, pred, "law")
+        return u_step, clips_step, ModelSteps(0, pred, ModelStepEnd.LAW)
     if kind not in ("path", "crossing", "lifted"):
-        return u_step, clips_step, ModelSteps(0, pred, "kind")  # e.g. probed points: no E(k) the model predicts
+        return u_step, clips_step, ModelSteps(0, pred, ModelStepEnd.KIND)  # e.g. probed points: no E(k) the model predicts
     from ilcnc.vcnc.machine_errors import ErrorSources
 
     profile, original = learner.profile, learner.program
@@ -668,12 +649,12 @@ def model_assisted_correction(learner: Learner, u_meas: NDArray[np.float64], mea
 
     e, ok, r = predicted(u_step)
     pred.append(r)
-    u, clips, made, reason = u_step, clips_step, 0, "steps"
+    u, clips, made, reason = u_step, clips_step, 0, ModelStepEnd.STEPS
     for j in range(1, steps + 1):
         u_new, clips_new = learner.propose([u], [CommandSignal(e, measured.t_s, ok, kind)], scale=scale)
         e_new, ok_new, r_new = predicted(u_new)
         if not r_new < r:
-            reason = "no gain"
+            reason = ModelStepEnd.NO_GAIN
             break
         u, clips, e, ok, r, made = u_new, clips_new, e_new, ok_new, r_new, j
         pred.append(r)
@@ -775,8 +756,8 @@ def learn_virtual(
     LearnResult
     """
     from ilcnc.vcnc.machine_errors import ErrorSources
-    from ilcnc.vcnc.simulate import simulate_program
-    from ilcnc.vcnc.stream import simulate_streamed, stream_unsupported
+    from ilcnc.vcnc.run import run_virtual
+    from ilcnc.vcnc.stream import StreamedRun
 
     require_learnable(program)
     n_iter = profile.learning.iterations if iterations is None else int(iterations)
@@ -792,7 +773,7 @@ def learn_virtual(
     # a run that keeps only its figures goes chunk by chunk (bounded memory, the same numbers: ilcnc.vcnc.stream)
     feed_on = profile.learning.refine.feed == "on"
     # per-move figures for the feed learning need the whole run
-    streamed = not keep_runs and not feed_on and stream_unsupported(profile, kind, sources=sources) is None
+    keep_samples = keep_runs or feed_on
     n_moves = len(program.moves)
     last_feed: dict[str, Any] = {}  # the last run's per-move errors and times (feed learning)
     if feed_on:
@@ -805,13 +786,12 @@ def learn_virtual(
         if progress:
             progress(it, n_iter, "simulate")
         t0 = time.perf_counter()
-        if streamed:
-            st = simulate_streamed(prog, profile, against=None if prog is program else program,
-                                   gate_mm=measurement_gate_mm(profile))
-            timings = dict(st.timings_s)
+        sim = run_virtual(prog, profile, against=None if prog is program else program, kind=kind,
+                          keep_samples=keep_samples, sources=sources, gate_mm=measurement_gate_mm(profile))
+        if isinstance(sim, StreamedRun):
+            timings = dict(sim.timings_s)
             timings["simulate"] = time.perf_counter() - t0 - timings["error"]
-            return st, st.signal, timings
-        sim = simulate_program(prog, profile, against=None if prog is program else program, sources=sources)
+            return sim, sim.signal, timings
         t1 = time.perf_counter()
         if feed_on:
             ref_move = sim.reference.move
@@ -835,9 +815,10 @@ def learn_virtual(
     else:
         text0, prog0 = program.text, program
     sim0, sig0, tim0 = run(prog0, 0)
-    records = [IterationRecord(first_iteration, dict(sim0.stats), u0, sig0, [], True, 1.0, text0,
-                               sim0 if keep_runs else None, tim0, dict(sim0.shares), dict(sim0.air_stats),
-                               float(sim0.cycle_time_s), f0)]
+    records = [IterationRecord(iteration=first_iteration, stats=sim0.stats, corrections_mm=u0, signal=sig0,
+                               clipped=[], kept=True, gain_scale=1.0, text=text0, run=sim0 if keep_runs else None,
+                               timings_s=tim0, shares=dict(sim0.shares), air_stats=sim0.air_stats,
+                               cycle_time_s=float(sim0.cycle_time_s), feed_scale=f0)]
     feed_law, not_adjustable = (_feed_law(program, profile, classes_f, last_feed["time"], f0, float(sim0.cycle_time_s))
                                 if f0 is not None else (None, {}))
     feed_err0 = last_feed.get("err")
@@ -850,16 +831,16 @@ def learn_virtual(
     err_best = feed_err0  # per-move errors of the best kept run (feed learning)
     stall_msg: str | None = None
     best = 0
-    scale = 1.0
-    halved = False
-    status, message = "max_iterations", f"ran {n_iter} iterations"
-    if stats0["max"] <= profile.learning.stop_tolerance_mm:
-        return LearnResult(program, records, "converged",
-                           f"max contour error {stats0['max'] * 1e3:.2f} µm is already within the stop tolerance",
-                           0, frozen, n_air, rule)
+    guard_ = LearningGuard(resolution_mm=profile.machine.resolution_mm)
+    status, message = LearnStatus.MAX_ITERATIONS, f"ran {n_iter} iterations"
+    if stats0.max_mm <= profile.learning.stop_tolerance_mm:
+        return LearnResult(program=program, iterations=records, status=LearnStatus.CONVERGED,
+                           message=f"max contour error {stats0.max_mm * 1e3:.2f} µm is already within the stop tolerance",
+                           best=0, frozen=frozen, air_commands=n_air, cutting=rule)
     if k == 0 or not sig0.valid.any():
-        return LearnResult(program, records, "stopped", "the program has no G01 command to correct", 0, frozen, n_air,
-                           rule)
+        return LearnResult(program=program, iterations=records, status=LearnStatus.STOPPED,
+                           message="the program has no G01 command to correct", best=0, frozen=frozen,
+                           air_commands=n_air, cutting=rule)
     it = 0
     # learning.refine.feed: when the geometry stalls (or its step is refused twice), the next step lowers the
     # feed where the error is left (the geometry held), then the geometry learns on at the new feeds
@@ -882,11 +863,12 @@ def learn_virtual(
                 feed_done = True
                 feed_step = False
                 if stall_msg is not None:
-                    status, message = "stopped", stall_msg + "; no feed left to lower within the budget"
+                    status, message = LearnStatus.STOPPED, stall_msg + "; no feed left to lower within the budget"
                     break
                 continue
         else:
-            u_new, clips = learner.propose(u_hist[-learner.law.memory:], s_hist[-learner.law.memory:], scale=scale)
+            u_new, clips = learner.propose(u_hist[-learner.law.memory:], s_hist[-learner.law.memory:],
+                                           scale=guard_.gain_scale)
             f_new = f_best
         t_law = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -895,20 +877,22 @@ def learn_virtual(
         sim, sig, tim = run(prog, it)
         tim["law"] = t_law
         tim["write"] = t_write
-        stats = dict(sim.stats)
+        stats = sim.stats
         cycle = float(sim.cycle_time_s)
-        ref_stats = best_stats([r.stats for r in records if r.kept])
-        worse = grew(stats, ref_stats, resolution_mm=profile.machine.resolution_mm) if guard else []
+        kept_stats = [r.stats for r in records if r.kept]
+        ref_stats = best_stats(kept_stats)
+        worse = guard_.compare(stats, kept_stats)[0] if guard else []
         if feed_step:
             assert feed_law is not None and f_new is not None and f_best is not None
             feed_law.measured(f_new, cycle, cycle_best, f_best)
             if guard and cycle > feed_law.cycle0_s + feed_law.budget_s:
                 worse.append("cycle")
-            if guard and not worse and stats["max"] >= ref_stats["max"]:
+            if guard and not worse and stats.max_mm >= ref_stats.max_mm:
                 worse.append("max")  # a feed step is taken for the max: one that does not lower it costs time
-        rec = IterationRecord(first_iteration + it, stats, u_new, sig, clips, not worse, scale, text,
-                              sim if keep_runs else None, tim, dict(sim.shares), dict(sim.air_stats),
-                              cycle, f_new)
+        rec = IterationRecord(iteration=first_iteration + it, stats=stats, corrections_mm=u_new, signal=sig,
+                              clipped=clips, kept=not worse, gain_scale=guard_.gain_scale, text=text,
+                              run=sim if keep_runs else None, timings_s=tim, shares=dict(sim.shares),
+                              air_stats=sim.air_stats, cycle_time_s=cycle, feed_scale=f_new)
         del sim, prog  # one run held at a time: a large program's run is several GB
         records.append(rec)
         if on_record:
@@ -917,66 +901,67 @@ def learn_virtual(
             what = " and ".join(_grown(w, ref_stats, stats, rec, feed_law) for w in worse)
             if feed_step:  # the feed learning ends; the geometry's outcome stands
                 feed_step, feed_done = False, True
-                status = "stopped"
+                status = LearnStatus.STOPPED
                 message = f"the feed step of iteration {rec.iteration} did not lower the error ({what}): stopped"
                 break
-            if halved:
-                if not feed_done:
-                    feed_step, stall_msg = True, None
+            match guard_.refuse():
+                case GuardVerdict.HALVED:
                     continue
-                status = "diverged"
-                message = f"iteration {rec.iteration} made the error worse again ({what}) with the gain halved: stopped"
-                break
-            halved = True
-            scale *= 0.5
-            continue
-        prev_rms = records[best].stats["rms"]
+                case GuardVerdict.STOPPED:
+                    if not feed_done:
+                        feed_step, stall_msg = True, None
+                        continue
+                    status = LearnStatus.DIVERGED
+                    message = guard_.stopped_message(rec.iteration, what) + ": stopped"
+                    break
+        prev_rms = records[best].stats.rms_mm
         best = len(records) - 1
         err_best = last_feed.get("err")
         u_hist.append(u_new)
         s_hist.append(sig)
-        if stats["max"] <= profile.learning.stop_tolerance_mm:
-            status = "converged"
-            message = (f"max contour error {stats['max'] * 1e3:.3f} µm is within the stop tolerance "
+        if stats.max_mm <= profile.learning.stop_tolerance_mm:
+            status = LearnStatus.CONVERGED
+            message = (f"max contour error {stats.max_mm * 1e3:.3f} µm is within the stop tolerance "
                        f"{profile.learning.stop_tolerance_mm * 1e3:g} µm after iteration {rec.iteration}")
             break
         if feed_step:  # kept: the geometry learns on at the new feeds
-            feed_step, halved = False, False
+            feed_step, guard_.halved = False, False
             continue
-        if stop_on_stall and prev_rms - stats["rms"] < STALL_REL * prev_rms:
+        if stop_on_stall and prev_rms - stats.rms_mm < STALL_REL * prev_rms:
             stall_msg = (f"iteration {rec.iteration} improved the RMS contour error by less than {STALL_REL:.0%} "
-                         f"({prev_rms * 1e3:.3f} → {stats['rms'] * 1e3:.3f} µm)")
+                         f"({prev_rms * 1e3:.3f} → {stats.rms_mm * 1e3:.3f} µm)")
             if not feed_done:
                 feed_step = True
                 continue
-            status = "stopped"
+            status = LearnStatus.STOPPED
             message = stall_msg + ": stopped"
             break
     # the output: the kept iteration with the lowest RMS error (a kept iteration may be a hair
     # worse than the one before, within the resolution); unguarded runs keep every iteration
     kept_idx = [i for i, r in enumerate(records) if r.kept]
     if feed_law is not None:  # feed steps are taken for the max
-        best = min(kept_idx, key=lambda i: (records[i].stats["max"], records[i].stats["rms"], -i))
+        best = min(kept_idx, key=lambda i: (records[i].stats.max_mm, records[i].stats.rms_mm, -i))
     else:
-        best = min(kept_idx, key=lambda i: (records[i].stats["rms"], -i))
-    if status == "max_iterations":
+        best = min(kept_idx, key=lambda i: (records[i].stats.rms_mm, -i))
+    if status == LearnStatus.MAX_ITERATIONS:
         message = f"ran {n_iter} iterations"
-    if status in ("max_iterations", "diverged"):
+    if status in (LearnStatus.MAX_ITERATIONS, LearnStatus.DIVERGED):
         message += f"; the output is iteration {records[best].iteration}"
     feed_out = None
     if feed_law is not None:
         feed_out = _feed_outcome(program, profile, feed_law, not_adjustable, records[best], records[0], feed_err0)
-    return LearnResult(program, records, status, message, best, frozen, n_air, rule, feed_out)
+    return LearnResult(program=program, iterations=records, status=status, message=message, best=best, frozen=frozen,
+                       air_commands=n_air, cutting=rule, feed=feed_out)
 
 
-def _grown(what: str, ref: dict[str, float], new: dict[str, float], rec: IterationRecord,
+def _grown(what: str, ref: Mapping[str, float], new: Mapping[str, float], rec: IterationRecord,
            feed_law: FeedLaw | None) -> str:
     """One grown figure for the guard's message."""
     if what == "cycle":
         assert feed_law is not None and rec.cycle_time_s is not None
         limit = feed_law.cycle0_s + feed_law.budget_s
         return f"cycle time {rec.cycle_time_s:.2f} s over the feed budget's {limit:.2f} s"
-    return f"{what.upper()} {ref[what] * 1e3:.2f} → {new[what] * 1e3:.2f} µm"
+    return LearningGuard.grown(what, ref, new)
 
 
 def _feed_law(program: Program, profile: MachineProfile, classes: NDArray[np.int8], time_s: NDArray[np.float64],
@@ -1097,7 +1082,7 @@ def refine_for_learning(original: Program, profile: MachineProfile) -> Refinemen
 
     original.require_complete()
     sim = simulate_program(original, profile)
-    first = dict(sim.stats)
+    first = sim.stats
     t0 = float(sim.cycle_time_s)
     dist, seg, u = sim.error.dist_mm, sim.error.seg, sim.error.u
     del sim
@@ -1105,7 +1090,7 @@ def refine_for_learning(original: Program, profile: MachineProfile) -> Refinemen
 
 
 def refine_from_errors(original: Program, profile: MachineProfile, *, dist_mm: NDArray[np.float64],
-                       seg: NDArray[np.int64], u: NDArray[np.float64], first_stats: dict[str, float],
+                       seg: NDArray[np.int64], u: NDArray[np.float64], first_stats: ErrorFigures,
                        cycle_time_s: float | None = None) -> Refinement:
     """Refine ``original`` where a run of it erred: the run's per-sample contour error (mm), the move of each
     sample's foot and its path parameter (a virtual run, or the machine's log of the original program: no

@@ -31,8 +31,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.jsonout import json_float
-from ilcnc.profile.schema import AXIS_NAMES
+from ilcnc.outcomes import LiftedStatus
 from ilcnc.profile.sections import MachineProfile, PFfFrictionDrive
+from ilcnc.units import AXIS_NAMES
 
 __all__ = [
     "DEFAULT_GAMMAS", "DEFAULT_MAX_COMMANDS", "DEFAULT_Q_FILTERS_HZ", "LiftedCandidate", "LiftedCheck",
@@ -367,7 +368,7 @@ def lifted_model(program: Any, profile: MachineProfile, *, commands: tuple[int, 
                        float(step_mm), n, time.perf_counter() - t0)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class LiftedCandidate:
     """One (Γ, Q-filter) pair on a lifted model.
 
@@ -409,7 +410,7 @@ class LiftedCandidate:
     predicted_ratio: float
     predicted_ratio_n: float
     iterations: int
-    status: str
+    status: LiftedStatus
 
     def to_json(self) -> dict[str, Any]:
         return {"gamma": self.gamma, "q_filter_hz": self.q_filter_hz, "norm": self.norm, "norm_full": self.norm_full,
@@ -418,7 +419,7 @@ class LiftedCandidate:
                 "predicted_ratio_n": self.predicted_ratio_n, "iterations": self.iterations, "status": self.status}
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class LiftedCheck:
     """Result of :func:`check_lifted`.
 
@@ -560,8 +561,8 @@ def check_lifted(program: Any, profile: MachineProfile, *, gamma: float | None =
             gq = mdl.g @ qm
             for gam in gs:
                 cands.append(_candidate(eye - gam * gq, b, e0, e0n, gam, q, n_it))
-    mono = [c for c in cands if c.status == "monotone"]
-    asym = [c for c in cands if c.status == "asymptotic"]
+    mono = [c for c in cands if c.status == LiftedStatus.MONOTONE]
+    asym = [c for c in cands if c.status == LiftedStatus.ASYMPTOTIC]
     if mono:
         chosen = min(mono, key=lambda c: (c.norm, c.predicted_ratio_n))
         contraction, reason = chosen.norm, ""
@@ -580,8 +581,10 @@ def check_lifted(program: Any, profile: MachineProfile, *, gamma: float | None =
         reason = (reason + "; " if reason else "") + (
             f"a tangential mode of the corrections grows (ρ on all coordinates {chosen.spectral_radius_full:.6f}):"
             " it moves no contour error, but the corrections creep along the path")
-    return LiftedCheck(mdl, tuple(cands), chosen, chosen.status != "divergent", chosen.status == "monotone",
-                       float(contraction), reason, lead)
+    return LiftedCheck(model=mdl, candidates=tuple(cands), chosen=chosen,
+                       converges=chosen.status != LiftedStatus.DIVERGENT,
+                       monotone=chosen.status == LiftedStatus.MONOTONE, contraction=float(contraction), reason=reason,
+                       lead_commands=lead)
 
 
 def _candidate(m: NDArray[np.float64], b: NDArray[np.float64], e0: NDArray[np.float64], e0n: float, gamma: float,
@@ -600,8 +603,13 @@ def _candidate(m: NDArray[np.float64], b: NDArray[np.float64], e0: NDArray[np.fl
         rn = float(np.linalg.norm(e) / e0n)
     else:
         r1 = rn = 0.0
-    status = "monotone" if nb < 1.0 else ("asymptotic" if rho_n <= 1.0 + RHO_TOL else "divergent")
-    return LiftedCandidate(gamma, q, nb, nf, rho_n, rho_f, r1, rn, n_it, status)
+    if nb < 1.0:
+        status = LiftedStatus.MONOTONE
+    else:
+        status = LiftedStatus.ASYMPTOTIC if rho_n <= 1.0 + RHO_TOL else LiftedStatus.DIVERGENT
+    return LiftedCandidate(gamma=gamma, q_filter_hz=q, norm=nb, norm_full=nf, spectral_radius=rho_n,
+                           spectral_radius_full=rho_f, predicted_ratio=r1, predicted_ratio_n=rn, iterations=n_it,
+                           status=status)
 
 
 class _one_blas_thread:

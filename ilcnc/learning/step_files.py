@@ -20,8 +20,8 @@ from ilcnc.fileio import read_bytes
 from ilcnc.learning.identification import MODEL_ALIASES, Identification
 from ilcnc.learning.identify import identify_step
 from ilcnc.profile.load import load_profile
-from ilcnc.profile.schema import AXIS_NAMES
 from ilcnc.profile.sections import MachineProfile
+from ilcnc.units import AXIS_NAMES
 
 __all__ = ["identify_file", "read_step_csv"]
 

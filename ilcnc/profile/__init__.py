@@ -11,8 +11,9 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'edit': ('NOTE_PREFIX', 'REMARK_PREFIX', 'format_scalar', 'update_profile', 'update_text'),
     'load': ('default_profile', 'load_profile', 'profile_from_dict'),
     'schema': (
-        'AXIS_NAMES', 'DRIVE_KEY', 'MAX_COEFFS', 'MAX_DK_CANDIDATES', 'MM_PER_INCH', 'SELECTORS', 'SPECS', 'Spec',
-        'TOP_SECTIONS', 'default_of', 'format_number', 'spec_of'
+        'AXIS_NAMES', 'DEFAULT_ERROR', 'DRIVE_KEY', 'ERROR_KINDS', 'HISTORY_LAWS', 'MAX_COEFFS', 'MAX_DK_CANDIDATES',
+        'MM_PER_INCH', 'PREDICTED_ERRORS', 'SELECTORS', 'SPECS', 'Spec', 'TOP_SECTIONS', 'default_of',
+        'format_number', 'spec_of'
     ),
     'sections': (
         'AxisProfile', 'ControllerSection', 'DRIVE_MODELS', 'DriveModel', 'FirstOrderDelayDrive', 'LearningSection',

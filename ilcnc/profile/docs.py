@@ -7,7 +7,8 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 
-from ilcnc.profile.schema import AXIS_NAMES, MAX_COEFFS, MAX_DK_CANDIDATES, SPECS, TOP_SECTIONS, Spec, format_number
+from ilcnc.profile.schema import MAX_COEFFS, MAX_DK_CANDIDATES, SPECS, TOP_SECTIONS, Spec, format_number
+from ilcnc.units import AXIS_NAMES
 
 __all__ = ["schema_markdown"]
 

@@ -24,10 +24,12 @@ import yaml
 from ilcnc.errors import InputError, ProfileError
 from ilcnc.fileio import read_bytes
 from ilcnc.profile.schema import (
-    AXIS_NAMES,
+    DEFAULT_ERROR,
     DRIVE_KEY,
+    HISTORY_LAWS,
     MAX_COEFFS,
     MAX_DK_CANDIDATES,
+    PREDICTED_ERRORS,
     SELECTORS,
     SPECS,
     TOP_SECTIONS,
@@ -54,6 +56,7 @@ from ilcnc.profile.sections import (
     TuningSection,
     has_position_loop,
 )
+from ilcnc.units import AXIS_NAMES
 
 __all__ = ["default_profile", "load_profile", "profile_from_dict"]
 
@@ -437,6 +440,17 @@ def _cross_checks(d: dict[str, Any], fail: _Fail) -> None:
         if cut["radial_depth_mm"] is not None and cut["radial_depth_mm"] > tool["diameter_mm"]:
             fail(("cutting", "radial_depth_mm"), f"must be <= tool.diameter_mm ({format_number(tool['diameter_mm'])} mm),"
                                                  f" got {format_number(cut['radial_depth_mm'])}")
+    lr = d["learning"]
+    if lr["model_steps"]:
+        law = lr["law"]
+        kind = lr["error"] if lr["error"] != "auto" else DEFAULT_ERROR[law]
+        if law in HISTORY_LAWS:
+            fail(("learning", "model_steps"), f"must be 0 with learning.law {law}: the law keeps a history of runs and"
+                                             " takes no model-assisted step")
+        elif kind not in PREDICTED_ERRORS:
+            why = f"learning.error {kind}" if lr["error"] != "auto" else f"learning.error auto ({kind} for law {law})"
+            fail(("learning", "model_steps"), f"must be 0 with {why}: the virtual CNC predicts only the"
+                                             f" {', '.join(PREDICTED_ERRORS)} estimates; set learning.error to one")
     axes = d["axes"]
     names = ", ".join(axes)
     for ax in d["machine"]["travel_mm"]:

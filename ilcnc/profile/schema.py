@@ -23,12 +23,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from ilcnc.units import AXIS_NAMES, MM_PER_INCH
+
 __all__ = [
     "AXIS_NAMES",
+    "DEFAULT_ERROR",
     "DRIVE_KEY",
+    "ERROR_KINDS",
+    "HISTORY_LAWS",
     "MAX_COEFFS",
     "MAX_DK_CANDIDATES",
     "MM_PER_INCH",
+    "PREDICTED_ERRORS",
     "SELECTORS",
     "SPECS",
     "TOP_SECTIONS",
@@ -49,10 +55,8 @@ def format_number(x: float) -> str:
 
 
 #: Axis names a profile may define, in this order.
-AXIS_NAMES: tuple[str, ...] = ("x", "y", "z")
 
 #: Millimetres per inch (exact).
-MM_PER_INCH = 25.4
 
 #: Most coefficients a ``"coeffs"`` key (a polynomial in s) may have.
 MAX_COEFFS = 10
@@ -198,6 +202,16 @@ _LAW_P = ("learning.law", "p")
 _LAW_PID = ("learning.law", "pid_ace")
 _LAW_SO = ("learning.law", "second_order")
 _CUT_M = ("cutting.model", "mechanistic")
+
+#: Default error estimate of each law (``learning.error: auto``).
+DEFAULT_ERROR = {"p": "path", "pid_ace": "contour", "second_order": "tracking"}
+#: The estimates (profile key ``learning.error``, ``auto`` aside).
+ERROR_KINDS = ("path", "crossing", "contour", "tangent", "tracking", "lifted")
+#: The estimates the virtual CNC predicts from a run (``learning.model_steps`` needs one of them).
+PREDICTED_ERRORS = ("path", "crossing", "lifted")
+#: Laws whose update keeps a history of more than the last run (they take no model-assisted step).
+HISTORY_LAWS = ("second_order",)
+
 
 #: The profile schema: every key, in file order.
 SPECS: tuple[Spec, ...] = (

@@ -21,7 +21,8 @@ from typing import Any, ClassVar
 import yaml
 
 from ilcnc.errors import InputError
-from ilcnc.profile.schema import DRIVE_KEY, MM_PER_INCH, default_of
+from ilcnc.profile.schema import DRIVE_KEY, default_of
+from ilcnc.units import MM_PER_INCH
 
 __all__ = [
     "DRIVE_MODELS",

@@ -38,7 +38,6 @@ from ilcnc.program.model import (
     FLAG_HOME,
     FLAG_MACHINE,
     FLAG_PARAMETRIC,
-    MM_PER_INCH,
     MOVE_ARC_CCW,
     MOVE_ARC_CW,
     MOVE_LINE,
@@ -55,6 +54,7 @@ from ilcnc.program.model import (
     decode_source,
     looks_binary,
 )
+from ilcnc.units import MM_PER_INCH
 
 __all__ = ["detect_dialect", "read_gcode"]
 

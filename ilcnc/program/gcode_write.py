@@ -4,14 +4,8 @@ from __future__ import annotations
 
 import math
 
-from ilcnc.program.model import (
-    FLAG_MACHINE,
-    MM_PER_INCH,
-    MOVE_ARC_CW,
-    MOVE_RAPID,
-    PLANE_AXES,
-    named_axes,
-)
+from ilcnc.program.model import FLAG_MACHINE, MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, named_axes
+from ilcnc.units import AXIS_LETTERS, MM_PER_INCH
 
 __all__ = ["write_gcode"]
 
@@ -131,4 +125,4 @@ def write_gcode(moves: object, *, units: str = "mm", decimals: int = 3, name: st
     return "\n".join(out) + "\n"
 
 
-AXES_LETTERS = "XYZ"
+AXES_LETTERS = AXIS_LETTERS

@@ -133,7 +133,6 @@ from ilcnc.program.model import (
     FLAG_PARAMETRIC,
     FLAG_POLAR,
     FLAG_REPEATED,
-    MM_PER_INCH,
     MOVE_ARC_CCW,
     MOVE_ARC_CW,
     MOVE_LINE,
@@ -149,6 +148,7 @@ from ilcnc.program.model import (
     decode_source,
     looks_binary,
 )
+from ilcnc.units import MM_PER_INCH
 
 __all__ = ["read_heidenhain"]
 

@@ -6,17 +6,8 @@ import math
 
 import numpy as np
 
-from ilcnc.program.model import (
-    FLAG_MACHINE,
-    MM_PER_INCH,
-    MOVE_ARC_CCW,
-    MOVE_LINE,
-    MOVE_RAPID,
-    PLANE_AXES,
-    PLANE_XY,
-    MoveTable,
-    named_axes,
-)
+from ilcnc.program.model import FLAG_MACHINE, MOVE_ARC_CCW, MOVE_LINE, MOVE_RAPID, PLANE_AXES, PLANE_XY, MoveTable, named_axes
+from ilcnc.units import AXIS_LETTERS, MM_PER_INCH
 
 __all__ = ["write_klartext"]
 
@@ -24,7 +15,7 @@ __all__ = ["write_klartext"]
 # --------------------------------------------------------------------------------------------
 # public API: writer
 # --------------------------------------------------------------------------------------------
-_AXIS_LETTERS = "XYZ"
+_AXIS_LETTERS = AXIS_LETTERS
 
 
 class _Writer:

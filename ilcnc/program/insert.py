@@ -49,6 +49,7 @@ from ilcnc.program.model import (
     Program,
 )
 from ilcnc.program.rewrite import format_number, spelling
+from ilcnc.units import AXIS_LETTERS
 
 __all__ = ["MARKER", "InsertResult", "InsertedLine", "SkippedMove", "insert_points", "inserted_moves", "required_decimals",
            "split_move_of"]
@@ -56,7 +57,7 @@ __all__ = ["MARKER", "InsertResult", "InsertedLine", "SkippedMove", "insert_poin
 #: The trailing comment of every inserted line.
 MARKER = "ilcnc refine"
 
-_AXES = "XYZ"
+_AXES = AXIS_LETTERS
 _UNSAFE_FLAGS = {
     FLAG_MACHINE: "machine coordinates (G53 / M91 / M92)",
     FLAG_HOME: "a home move (G28 / G30)",

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.errors import UnsupportedError
+from ilcnc.units import AXIS_LETTERS, MM_PER_INCH
 
 # Move kinds
 MOVE_RAPID = 0
@@ -67,8 +68,7 @@ PLANE_YZ = 19
 #: (first, second) plane, clockwise seen from the plane's positive normal.
 PLANE_AXES: dict[int, tuple[int, int, int]] = {PLANE_XY: (0, 1, 2), PLANE_XZ: (2, 0, 1), PLANE_YZ: (1, 2, 0)}
 
-AXES = "XYZ"
-MM_PER_INCH = 25.4
+AXES = AXIS_LETTERS
 
 def center_arc_tolerance_mm(unit_mm: float) -> float:
     """How far a centre-format arc's end may miss the circle through its start, mm: LinuxCNC's interpreter

@@ -38,11 +38,12 @@ from ilcnc.program.model import (
     Program,
     arc_off_circle,
 )
+from ilcnc.units import AXIS_LETTERS, CENTER_LETTERS
 
 __all__ = ["Edit", "apply_corrections", "format_number", "spelling"]
 
-_LETTERS = "XYZ"
-_CENTER_LETTERS = "IJK"
+_LETTERS = AXIS_LETTERS
+_CENTER_LETTERS = CENTER_LETTERS
 
 
 @dataclass(frozen=True, slots=True)

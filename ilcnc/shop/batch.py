@@ -33,6 +33,7 @@ from typing import Any
 from ilcnc._threads import limit_process, thread_limit_scope, threads_per_part
 from ilcnc.errors import IlcncError, InputError
 from ilcnc.fileio import read_bytes, write_atomic
+from ilcnc.outcomes import PartStatus
 
 __all__ = ["BatchJob", "PartResult", "jobs_from_path", "run_batch", "summary_csv"]
 
@@ -48,13 +49,13 @@ class BatchJob:
     iterations: int | None = None
 
 
-@dataclass(slots=True)
+@dataclass(slots=True, kw_only=True)
 class PartResult:
     """What learning one part gave (DESIGN.md's ``batch`` object, one entry)."""
 
     program: str
     profile: str
-    status: str
+    status: PartStatus
     g01_commands: int = 0
     iterations: int = 0
     contour_error_mm: dict[str, float | None] = field(default_factory=lambda: {"before": None, "after": None})
@@ -68,7 +69,7 @@ class PartResult:
     @property
     def failed(self) -> bool:
         """The part could not be learned (bad input), or learning made it worse than the original."""
-        return self.status in ("error", "regressed")
+        return PartStatus(self.status).failed
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -146,10 +147,11 @@ def learn_one(job: BatchJob) -> PartResult:
         oc = learn_part(LearnRequest(Path(job.program), Path(job.profile), Path(job.out), iterations=job.iterations,
                                      state=Path(job.state)))
     except IlcncError as exc:
-        msg = exc.format() if hasattr(exc, "format") else str(exc)
-        return PartResult(job.program, job.profile, "error", error=msg)
+        msg = exc.format()
+        return PartResult(program=job.program, profile=job.profile, status=PartStatus.ERROR, error=msg)
     except Exception as exc:
-        return PartResult(job.program, job.profile, "error", error=f"{job.program}: internal error: {exc!r}")
+        return PartResult(program=job.program, profile=job.profile, status=PartStatus.ERROR,
+                          error=f"{job.program}: internal error: {exc!r}")
     its = oc.iterations
     before = its[0]["contour_error_mm"]["rms"] if its and its[0]["contour_error_mm"] else None
     kept = [it for it in its if it.get("kept") and it["contour_error_mm"]]
@@ -159,14 +161,16 @@ def learn_one(job: BatchJob) -> PartResult:
              "after": best["contour_error_mm"]["max"] if best else None,
              "air_after": (best.get("air_error_mm") or {}).get("max") if best else None}
     cycle = {"before": its[0].get("cycle_time_s") if its else None, "after": best.get("cycle_time_s") if best else None}
-    status = oc.status
-    if status == "diverged" and before is not None and after is not None and after >= before:
-        status = "regressed"
+    status = PartStatus.of(oc.status)
+    if status == PartStatus.DIVERGED and before is not None and after is not None and after >= before:
+        status = PartStatus.REGRESSED
     from ilcnc.program import read_program
 
     n = read_program(job.program).n_commands
-    return PartResult(job.program, job.profile, status, n, len(its) - 1, {"before": before, "after": after},
-                      len(oc.clips), None, str(oc.output) if oc.output else None, maxes, cycle)
+    return PartResult(program=job.program, profile=job.profile, status=status, g01_commands=n,
+                      iterations=len(its) - 1, contour_error_mm={"before": before, "after": after},
+                      clipped=len(oc.clips), error=None, output=str(oc.output) if oc.output else None,
+                      max_error_mm=maxes, cycle_time_s=cycle)
 
 
 def run_batch(

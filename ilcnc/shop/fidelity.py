@@ -32,6 +32,7 @@ from ilcnc.axislog.log import AxisLog
 from ilcnc.errors import LogError
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import Program
+from ilcnc.units import AXIS_NAMES
 from ilcnc.vcnc.command_error import CommandSignal, error_kind
 
 __all__ = ["TARGET_CORRELATION", "TARGET_DIFFERENCE", "Fidelity", "compare_signals", "fidelity_of_log"]
@@ -117,7 +118,7 @@ class Fidelity:
         }
 
 
-def compare_signals(measured: CommandSignal, predicted: CommandSignal, *, axes: tuple[str, ...] = ("x", "y", "z"),
+def compare_signals(measured: CommandSignal, predicted: CommandSignal, *, axes: tuple[str, ...] = AXIS_NAMES,
                     command_line: NDArray[np.int64] | None = None) -> Fidelity:
     """Compare two per-command error signals of the same program.
 

@@ -24,9 +24,11 @@ from ilcnc.axislog.halsampler import moves_from_lines
 from ilcnc.axislog.log import AxisLog
 from ilcnc.axislog.points import MeasuredPoints
 from ilcnc.contour.air import MOVE_AIR, air_above_mm, profile_move_classes
+from ilcnc.contour.figures import ErrorFigures
 from ilcnc.errors import LogError
 from ilcnc.profile.sections import MachineProfile
-from ilcnc.program.model import FLAG_CUTTER_COMP, MM_PER_INCH, MOVE_RAPID, Program
+from ilcnc.program.model import FLAG_CUTTER_COMP, MOVE_RAPID, Program
+from ilcnc.units import MM_PER_INCH
 from ilcnc.vcnc.command_error import CommandSignal, command_signal_from_run, measurement_gate_mm, reference_command_samples
 
 __all__ = ["Measurement", "interpolate_along_path", "measure_log", "measure_points"]
@@ -41,7 +43,7 @@ MIN_COVERAGE = 0.5
 DURATION_RATIO = (0.5, 3.0)
 
 
-@dataclass(slots=True, eq=False)
+@dataclass(slots=True, eq=False, kw_only=True)
 class Measurement:
     """What one measurement says about the program that ran.
 
@@ -63,7 +65,7 @@ class Measurement:
 
     kind: str
     signal: CommandSignal
-    stats: dict[str, float]
+    stats: ErrorFigures
     actual_mm: NDArray[np.float64] | None = None
     contour_mm: NDArray[np.float64] | None = None
     signed_mm: NDArray[np.float64] | None = None
@@ -71,16 +73,13 @@ class Measurement:
     path_pos_mm: NDArray[np.float64] | None = None
     feed_mask: NDArray[np.bool_] | None = None
     notes: list[str] = field(default_factory=list)
-    air_stats: dict[str, float] | None = None
+    air_stats: ErrorFigures | None = None
     seg: NDArray[np.int64] | None = None  # move of each sample's foot point (-1: none)
     u: NDArray[np.float64] | None = None  # its path parameter (move + fraction)
 
 
-def _stats(d: NDArray[np.float64]) -> dict[str, float]:
-    d = d[np.isfinite(d)]
-    if d.size == 0:
-        return {"max": 0.0, "mean": 0.0, "rms": 0.0}
-    return {"max": float(d.max()), "mean": float(d.mean()), "rms": float(np.sqrt(np.mean(d * d)))}
+def _stats(d: NDArray[np.float64]) -> ErrorFigures:
+    return ErrorFigures.of(d)
 
 
 def sample_moves(log: AxisLog, ran: Program) -> NDArray[np.int64]:
@@ -237,8 +236,10 @@ def measure_log(
     above = air_above_mm(original, rule, classes, resolution_mm=profile.machine.resolution_mm)
     # an air move, or a cutting move's sample whose nearest point on the drawing is above the stock top
     air = (classes[mv_or_first] == MOVE_AIR) | (np.nan_to_num(err.foot_mm[:, 2], nan=-np.inf) > above[mv_or_first])
-    return Measurement("log", sig, _stats(np.where(air, np.nan, d)), act, err.dist_mm, err.signed_mm, err.foot_mm,
-                       path_position_mm(err), feed, notes, _stats(np.where(air, d, np.nan)), err.seg, err.u)
+    return Measurement(kind="log", signal=sig, stats=_stats(np.where(air, np.nan, d)), actual_mm=act,
+                       contour_mm=err.dist_mm, signed_mm=err.signed_mm, foot_mm=err.foot_mm,
+                       path_pos_mm=path_position_mm(err), feed_mask=feed, notes=notes,
+                       air_stats=_stats(np.where(air, d, np.nan)), seg=err.seg, u=err.u)
 
 
 def path_position_mm(err: Any) -> NDArray[np.float64]:
@@ -358,7 +359,7 @@ def measure_points(
         lines = ", ".join(str(int(original.command_line[k])) for k in far[:8]) + (", ..." if far.size > 8 else "")
         notes.append(f"{far.size} of {kk} commands are far from any measured point and are left as they are"
                      f" (lines {lines})")
-    return Measurement("points", sig, _stats(np.linalg.norm(e[measured], axis=1)), notes=notes)
+    return Measurement(kind="points", signal=sig, stats=_stats(np.linalg.norm(e[measured], axis=1)), notes=notes)
 
 
 def interpolate_along_path(

@@ -47,6 +47,7 @@ from numpy.typing import NDArray
 
 from ilcnc.errors import InputError
 from ilcnc.fileio import write_atomic
+from ilcnc.units import AXIS_LETTERS
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -61,7 +62,7 @@ CHANGE_TOL_MM = 1e-9
 
 _CHUNK = 1 << 20
 _DPI = 110
-_AXES = "XYZ"
+_AXES = AXIS_LETTERS
 
 
 @dataclass(slots=True)

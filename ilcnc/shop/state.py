@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from ilcnc.errors import StateError
 from ilcnc.fileio import read_bytes, write_atomic
+from ilcnc.outcomes import LearnStatus
 
 __all__ = ["STATE_FILE", "IterationEntry", "LearnState", "sha256_bytes", "sha256_file"]
 
@@ -118,7 +119,7 @@ class LearnState:
     profile_sha256: str
     iterations: list[IterationEntry] = field(default_factory=list)
     gain_scale: float = 1.0
-    status: str = "learning"
+    status: LearnStatus = LearnStatus.LEARNING
 
     # -- queries -----------------------------------------------------------------------------
 
@@ -275,7 +276,7 @@ class LearnState:
                 profile_sha256=str(data["profile_sha256"]),
                 iterations=[IterationEntry(**e) for e in data["iterations"]],
                 gain_scale=float(data["gain_scale"]),
-                status=str(data["status"]),
+                status=LearnStatus(str(data["status"])),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise StateError(p, None, f"damaged learning state: {exc}") from None

@@ -34,12 +34,11 @@ from numpy.typing import NDArray
 
 from ilcnc.errors import LogError, StateError
 from ilcnc.fileio import read_bytes, write_atomic
+from ilcnc.learning.guard import LearningGuard
 from ilcnc.learning.learner import (
     Clip,
     IterationRecord,
     Learner,
-    best_stats,
-    grew,
     learn_virtual,
     model_assisted_correction,
     program_with_corrections,
@@ -47,6 +46,7 @@ from ilcnc.learning.learner import (
     refine_from_errors,
     require_learnable,
 )
+from ilcnc.outcomes import GuardVerdict, LearnMode, LearnStatus
 from ilcnc.profile.load import load_profile
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program import read_program
@@ -149,16 +149,16 @@ class LearnRequest:
     relearn: bool = False
 
 
-@dataclass(slots=True)
+@dataclass(slots=True, kw_only=True)
 class LearnOutcome:
     """The result of one ``ilcnc learn`` call (printed, or ``--json``)."""
 
-    mode: str
+    mode: LearnMode
     program: Path
     output: Path | None
     state_dir: Path
     iterations: list[dict[str, Any]]
-    status: str
+    status: LearnStatus
     message: str
     clips: list[Clip] = field(default_factory=list)
     frozen: int = 0
@@ -318,7 +318,7 @@ def _record_writer(state: LearnState, program: Program) -> Callable[[IterationRe
         if rec.shares:
             entry.measured_from["error_shares_mm"] = rec.shares
         if rec.air_stats is not None:
-            entry.measured_from["air_error_mm"] = rec.air_stats
+            entry.measured_from["air_error_mm"] = rec.air_stats.to_json()
         if rec.cycle_time_s is not None:
             entry.measured_from["cycle_time_s"] = rec.cycle_time_s
         state.gain_scale = min(state.gain_scale, rec.gain_scale)
@@ -413,8 +413,9 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
     state.status = result.status
     state.save()
     rule = result.cutting
-    outcome = LearnOutcome("virtual", req.program, out, state.directory, [r.to_json() for r in result.iterations],
-                           result.status, result.message, result.clips, result.frozen, notes,
+    outcome = LearnOutcome(mode=LearnMode.VIRTUAL, program=req.program, output=out, state_dir=state.directory,
+                           iterations=[r.to_json() for r in result.iterations], status=result.status,
+                           message=result.message, clips=result.clips, frozen=result.frozen, notes=notes,
                            reduction_rms=result.reduction("rms"), air_commands=result.air_commands,
                            cutting_rule="" if rule is None else rule.describe(),
                            cutting=None if rule is None else rule.to_json(), refined=state.part.get("refined"))
@@ -601,7 +602,7 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         # a refined run (refined on the virtual CNC) learns its refined commands on the machine too: its
         # programs are judged against the refined program, which runs the original's path
         original = _learning_program(state, original, profile)
-        if state.status == "diverged":
+        if state.status == LearnStatus.DIVERGED:
             best = state.best()
             raise StateError(state.path, None, "this learning run stopped because the error grew twice: keep running"
                              f" {best.program if best else 'the original'} (no further step)")
@@ -633,14 +634,15 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
                               reach_mm=req.points_reach_mm)
     # the measurement of this iteration (written before the index that names it)
     entry.errors = state.write_errors(entry.iteration, meas.signal.e_mm, meas.signal.t_s, meas.signal.valid)
-    entry.stats = meas.stats
+    entry.stats = meas.stats.to_json()
     entry.measured_from = {"kind": meas.kind, "path": str(source), "sha256": src_sha}
     if meas.air_stats is not None:
-        entry.measured_from["air_error_mm"] = meas.air_stats
+        entry.measured_from["air_error_mm"] = meas.air_stats.to_json()
     best = state.best()
-    kept_stats = [e.stats for e in state.kept() if e.stats is not None]
-    ref_stats = best_stats(kept_stats) if kept_stats else None
-    worse = grew(meas.stats, ref_stats, resolution_mm=profile.machine.resolution_mm) if ref_stats else []
+    # the guard of the run (halved = the gain was halved at an earlier refusal: state.gain_scale < 1)
+    guard = LearningGuard(resolution_mm=profile.machine.resolution_mm, gain_scale=state.gain_scale,
+                          halved=state.gain_scale < 1.0)
+    worse, ref_stats = guard.compare(meas.stats, [e.stats for e in state.kept() if e.stats is not None])
     entry.kept = not worse
     notes = list(meas.notes)
     if profile.learning.refine.feed == "on":
@@ -649,33 +651,36 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     if refined_log is not None and state.part.get("refined"):
         notes.insert(0, f"refined from the log of the original program: {state.part['refined']['inserted_lines']}"
                         " lines inserted (docs/learning.md, Refinement)")
-    status, message = "stepped", ""
+    status, message = LearnStatus.STEPPED, ""
     out: Path | None = None
     clips: list[Clip] = []
     n_iter = req.iterations if req.iterations is not None else profile.learning.iterations
     if worse:
-        what = " and ".join(f"{w.upper()} {ref_stats[w] * 1e3:.2f} → {meas.stats[w] * 1e3:.2f} µm" for w in worse)  # type: ignore[index]
-        if state.gain_scale < 1.0:
-            state.status = "diverged"
-            state.save()
-            message = (f"iteration {entry.iteration} made the error worse again ({what}) with the gain halved: learning"
-                       f" stopped; keep running {best.program}, the best program")  # type: ignore[union-attr]
-            return _measured_outcome(req, state, "diverged", message, None, [], notes)
-        state.gain_scale *= 0.5
+        assert ref_stats is not None
+        what = " and ".join(guard.grown(w, ref_stats, meas.stats) for w in worse)
+        match guard.refuse():
+            case GuardVerdict.STOPPED:
+                state.status = LearnStatus.DIVERGED
+                state.save()
+                message = (guard.stopped_message(entry.iteration, what) + ": learning stopped; keep running"
+                           f" {best.program}, the best program")  # type: ignore[union-attr]
+                return _measured_outcome(req, state, LearnStatus.DIVERGED, message, None, [], notes)
+            case GuardVerdict.HALVED:
+                state.gain_scale = guard.gain_scale
         notes.append(f"iteration {entry.iteration} made the error worse ({what}): not kept; the next program starts from"
                      f" iteration {best.iteration} with the gain halved")  # type: ignore[union-attr]
     stats_now = state.best().stats  # type: ignore[union-attr]
     if stats_now["max"] <= profile.learning.stop_tolerance_mm:
-        state.status = "converged"
+        state.status = LearnStatus.CONVERGED
         state.save()
         message = (f"max error {stats_now['max'] * 1e3:.3f} µm is within the stop tolerance: keep running"
                    f" {state.best().program}")  # type: ignore[union-attr]
-        return _measured_outcome(req, state, "converged", message, None, [], notes)
+        return _measured_outcome(req, state, LearnStatus.CONVERGED, message, None, [], notes)
     if entry.iteration >= n_iter:
-        state.status = "max_iterations"
+        state.status = LearnStatus.MAX_ITERATIONS
         state.save()
         message = f"{entry.iteration} iterations made (the limit): keep running {state.best().program}"  # type: ignore[union-attr]
-        return _measured_outcome(req, state, "max_iterations", message, None, [], notes)
+        return _measured_outcome(req, state, LearnStatus.MAX_ITERATIONS, message, None, [], notes)
     learner = Learner.for_program(original, profile)
     kept = state.kept()[-learner.law.memory:]
     u_hist = [state.read_corrections(e) for e in kept]
@@ -692,9 +697,7 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         # the history holds the state's error estimate (a log measures it; points do not: above)
         u_new, clips, ms = model_assisted_correction(learner, u_hist[-1], s_hist[-1], u_new, clips, steps,
                                                      scale=state.gain_scale)
-        why = {"steps": "", "no gain": ": the next would not lower the predicted error",
-               "law": f": the {profile.learning.law} law keeps a history",
-               "kind": f": the virtual CNC does not predict the {state.error} estimate"}[ms.reason]
+        why = ms.why(profile.learning.law, state.error)
         notes.append(f"model-assisted step: {ms.made} of {steps} virtual-CNC steps kept{why}; RMS |E(k)| measured"
                      f" {ms.predicted_rms_mm[0] * 1e3:.2f} µm, predicted "
                      + " → ".join(f"{r * 1e3:.2f}" for r in ms.predicted_rms_mm[1:]) + " µm")
@@ -721,8 +724,10 @@ def _measured_outcome(req: LearnRequest, state: LearnState, status: str, message
     red = 0.0
     if first and best is not None and best.stats and first["rms"] > 0:
         red = 1.0 - best.stats["rms"] / first["rms"]
-    oc = LearnOutcome("log" if req.log is not None else "points", req.program, out, state.directory, its, status, message,
-                      clips, 0, notes, reduction_rms=red, refined=state.part.get("refined"))
+    mode = LearnMode.LOG if req.log is not None else LearnMode.POINTS
+    oc = LearnOutcome(mode=mode, program=req.program, output=out, state_dir=state.directory, iterations=its,
+                      status=status, message=message, clips=clips, frozen=0, notes=notes, reduction_rms=red,
+                      refined=state.part.get("refined"))
     if req.report is not None:
         oc.report_files = _report_measured(req, state, meas, clips)
     return oc

@@ -9,9 +9,9 @@ from ilcnc._lazy import lazy_exports
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
     'command_error': (
-        'CommandSignal', 'DEFAULT_ERROR', 'ERROR_KINDS', 'PathWeightedSums', 'command_end_tangents',
-        'command_signal_from_run', 'error_kind', 'measurement_gate_mm', 'path_weighted_error', 'plane_crossings',
-        'reference_command_samples', 'signal_of_simulation'
+        'CommandSignal', 'PathWeightedSums', 'command_end_tangents', 'command_signal_from_run', 'error_kind',
+        'measurement_gate_mm', 'path_weighted_error', 'plane_crossings', 'reference_command_samples',
+        'signal_of_simulation'
     ),
     'deflection': (
         'Cutting', 'MILLING_MODES', 'MeasuredFRF', 'ModalFRF', 'Mode', 'SEED004_CUTTING_REFERENCE',
@@ -37,9 +37,10 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'ACC_RATIO_NORMAL', 'ACC_RATIO_TANGENTIAL', 'BLEND_DIST_FRACTION', 'GAP_CYCLES', 'KINK_RATIO',
         'LOOKAHEAD_SEGMENTS', 'MIN_SEGMENT_CYCLES', 'TOLERANCE_RATIO', 'plan_linuxcnc'
     ),
+    'run': ('RunFigures', 'run_virtual', 'simulate_figures'),
     'schedule': ('read_schedule', 'schedule_on_samples'),
     'simulate': ('SimulationResult', 'simulate_program'),
-    'stream': ('StreamedRun', 'simulate_figures', 'simulate_streamed', 'stream_unsupported'),
+    'stream': ('StreamedRun', 'simulate_streamed', 'stream_unsupported'),
     'volumetric': (
         'AxisErrorTables', 'ErrorModel', 'GridMap', 'OutsideMapError', 'SEED002_CIRCLE_CENTRE_MM',
         'SEED002_CIRCLE_RADIUS_MM', 'SyntheticMap', 'format_grid_csv', 'format_tables_csv', 'load_volumetric',

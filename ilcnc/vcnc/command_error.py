@@ -27,12 +27,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc._jit import HAVE_NUMBA, njit
+from ilcnc.profile.schema import DEFAULT_ERROR
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
 
 __all__ = [
-    "DEFAULT_ERROR",
-    "ERROR_KINDS",
     "CommandSignal",
     "PathWeightedSums",
     "command_end_tangents",
@@ -45,10 +44,6 @@ __all__ = [
     "signal_of_simulation",
 ]
 
-#: Default error estimate of each law (``learning.error: auto``).
-DEFAULT_ERROR = {"p": "path", "pid_ace": "contour", "second_order": "tracking"}
-#: The estimates (profile key ``learning.error``, ``auto`` aside).
-ERROR_KINDS = ("path", "crossing", "contour", "tangent", "tracking", "lifted")
 
 # ---------------------------------------------------------------------------------------------
 # The per-command error signal

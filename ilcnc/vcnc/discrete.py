@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import cont2discrete, ss2tf, tf2ss
 
+from ilcnc.errors import IlcncError
 from ilcnc.profile.sections import (
     DriveModel,
     FirstOrderDelayDrive,
@@ -41,8 +42,10 @@ DELAY_SNAP = 1e-9
 STANDSTILL_MM = 1e-9
 
 
-class DriveModelError(ValueError):
-    """A drive model whose discrete closed loop is unstable (or not a valid model)."""
+class DriveModelError(IlcncError, ValueError):
+    """A drive model whose discrete closed loop is unstable (or not a valid model): the profile's values.
+
+    Also a :class:`ValueError`, as it was before ilcnc's errors had one root."""
 
 
 

@@ -143,12 +143,12 @@ from scipy.signal import lfilter
 
 from ilcnc._jit import HAVE_NUMBA, njit
 from ilcnc.errors import ProfileError
-from ilcnc.profile.schema import AXIS_NAMES
 from ilcnc.profile.sections import (
     DriveModel,
     MachineProfile,
     PFfFrictionDrive,
 )
+from ilcnc.units import AXIS_NAMES
 from ilcnc.vcnc.discrete import DiscreteModel, DriveModelError, discrete_model, loop_plant, pff_plant
 from ilcnc.vcnc.drive_loop import friction_column, path_normals, run_loop
 

@@ -174,7 +174,7 @@ def lifted_error(
     import scipy.sparse as sp
     from scipy.sparse.linalg import spsolve
 
-    from ilcnc.profile.schema import AXIS_NAMES
+    from ilcnc.units import AXIS_NAMES
     from ilcnc.vcnc.discrete import discrete_model
     from ilcnc.vcnc.drives import filter_deviation
 

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from ilcnc._jit import njit
 from ilcnc.axislog.log import AxisLog
 from ilcnc.contour.air import MOVE_CUT, MOVE_NOT_FED, CuttingRule, air_above_mm, profile_move_classes
+from ilcnc.contour.figures import ErrorFigures
 from ilcnc.errors import InputError
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_LINE, Program
@@ -33,7 +34,7 @@ from ilcnc.vcnc.plan import Reference, plan_program
 __all__ = ["SimulationResult", "simulate_program"]
 
 
-@dataclass(slots=True)
+@dataclass(slots=True, kw_only=True)
 class SimulationResult:
     """Everything one virtual-CNC run produced.
 
@@ -66,11 +67,11 @@ class SimulationResult:
     actual_mm: NDArray[np.float64]
     error: Any
     feed_mask: NDArray[np.bool_]
-    stats: dict[str, float]
+    stats: ErrorFigures
     worst_sample: int
     timings_s: dict[str, float] = field(default_factory=dict)
     shares: dict[str, dict[str, float]] = field(default_factory=dict)
-    air_stats: dict[str, float] = field(default_factory=lambda: {"max": 0.0, "mean": 0.0, "rms": 0.0})
+    air_stats: ErrorFigures = field(default_factory=ErrorFigures)
     cutting: CuttingRule = field(default_factory=lambda: CuttingRule(None, "none"))
     worst_at: dict[str, int] | None = None  # command and line of the worst sample on the judged path
 
@@ -115,8 +116,8 @@ def run_json(run: Any, program: Program) -> dict[str, Any]:
         "program": str(program.path),
         "samples": run.n_samples,
         "cycle_time_s": run.cycle_time_s,
-        "contour_error_mm": dict(run.stats),
-        "air_error_mm": dict(run.air_stats),
+        "contour_error_mm": run.stats.to_json(),
+        "air_error_mm": run.air_stats.to_json(),
         "cutting_rule": run.cutting.to_json(),
         "worst": run.worst(program),
     }
@@ -234,7 +235,9 @@ def simulate_program(
     if against is not None and worst >= 0:
         seg = int(err.seg[worst]) if err.seg[worst] >= 0 else int(on_target[worst])
         worst_at = {"k": int(target.moves.command[seg]), "line": int(target.moves.line[seg])}
-    return SimulationResult(ref, act, err, feed, stats, worst, timings, shares, acc.air_result(), rule, worst_at)
+    return SimulationResult(reference=ref, actual_mm=act, error=err, feed_mask=feed, stats=stats, worst_sample=worst,
+                            timings_s=timings, shares=shares, air_stats=acc.air_result(), cutting=rule,
+                            worst_at=worst_at)
 
 
 
@@ -294,20 +297,20 @@ class FeedStats:
         return int(self.acc[0, 1])
 
     @staticmethod
-    def _figures(a: NDArray[np.float64]) -> dict[str, float]:
+    def _figures(a: NDArray[np.float64]) -> ErrorFigures:
         cnt, _worst, peak, s1, c1, s2, c2 = a
         if cnt == 0:
-            return {"max": 0.0, "mean": 0.0, "rms": 0.0}
-        return {"max": float(peak), "mean": float((s1 + c1) / cnt), "rms": float(np.sqrt((s2 + c2) / cnt))}
+            return ErrorFigures()
+        return ErrorFigures(float(peak), float((s1 + c1) / cnt), float(np.sqrt((s2 + c2) / cnt)))
 
-    def result(self) -> tuple[dict[str, float], int]:
+    def result(self) -> tuple[ErrorFigures, int]:
         """The cutting moves' statistics (mm) and the run's worst cutting sample (-1 when none had a finite
         error)."""
         if self.acc[0, 0] == 0:
             return self._figures(self.acc[0]), -1
         return self._figures(self.acc[0]), int(self.acc[0, 1])
 
-    def air_result(self) -> dict[str, float]:
+    def air_result(self) -> ErrorFigures:
         """The air moves' statistics, mm (zeros when the run has no air move)."""
         return self._figures(self.acc[1])
 

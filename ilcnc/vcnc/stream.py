@@ -27,16 +27,17 @@ from typing import Any
 import numpy as np
 
 from ilcnc.contour.air import CuttingRule
+from ilcnc.contour.figures import ErrorFigures
 from ilcnc.errors import InputError
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import Program
 from ilcnc.vcnc.command_error import CommandSignal, PathWeightedSums, finish_signal
 from ilcnc.vcnc.plan import DEFAULT_CHUNK_SAMPLES, plan_chunks
 
-__all__ = ["StreamedRun", "simulate_figures", "simulate_streamed", "stream_unsupported"]
+__all__ = ["StreamedRun", "simulate_streamed", "stream_unsupported"]
 
 
-@dataclass(slots=True)
+@dataclass(slots=True, kw_only=True)
 class StreamedRun:
     """What a chunked virtual-CNC run keeps: the figures a learning iteration records.
 
@@ -64,7 +65,7 @@ class StreamedRun:
         The rule that told them apart (:mod:`ilcnc.contour.air`).
     """
 
-    stats: dict[str, float]
+    stats: ErrorFigures
     worst_sample: int
     worst_at: dict[str, int]
     n_samples: int
@@ -73,7 +74,7 @@ class StreamedRun:
     chunks: int
     timings_s: dict[str, float] = field(default_factory=dict)
     shares: dict[str, dict[str, float]] = field(default_factory=dict)
-    air_stats: dict[str, float] = field(default_factory=lambda: {"max": 0.0, "mean": 0.0, "rms": 0.0})
+    air_stats: ErrorFigures = field(default_factory=ErrorFigures)
     cutting: CuttingRule = field(default_factory=lambda: CuttingRule(None, "none"))
 
     @property
@@ -206,19 +207,6 @@ def simulate_streamed(
     e, t = sums.result()
     gate = gate_mm if gate_mm is not None else np.inf
     e[np.linalg.norm(np.nan_to_num(e, nan=np.inf), axis=1) > gate] = np.nan
-    return StreamedRun(stats, worst, worst_at if worst >= 0 else {"k": -1, "line": 0}, n, period,
-                       finish_signal(e, t, "path"), chunks, timings, {}, feed_stats.air_result(), rule)
-
-
-def simulate_figures(program: Program, profile: MachineProfile, *, against: Program | None = None,
-                     progress: Callable[[str], None] | None = None) -> Any:
-    """The figures of a virtual-CNC run (statistics, worst command, cycle time) in the least memory:
-    :func:`simulate_streamed` where the profile allows it, else :func:`ilcnc.vcnc.simulate.simulate_program`
-    (``ilcnc simulate`` without ``--out``, ``ilcnc check``)."""
-    from ilcnc.vcnc.machine_errors import ErrorSources
-    from ilcnc.vcnc.simulate import simulate_program
-
-    sources = ErrorSources.from_profile(profile)
-    if stream_unsupported(profile, "path", sources=sources) is None:
-        return simulate_streamed(program, profile, against=against, progress=progress)
-    return simulate_program(program, profile, against=against, progress=progress, sources=sources)
+    return StreamedRun(stats=stats, worst_sample=worst, worst_at=worst_at if worst >= 0 else {"k": -1, "line": 0},
+                       n_samples=n, period_s=period, signal=finish_signal(e, t, "path"), chunks=chunks,
+                       timings_s=timings, shares={}, air_stats=feed_stats.air_result(), cutting=rule)

@@ -131,6 +131,7 @@ from scipy.interpolate import BSpline, NdBSpline, make_interp_spline
 from ilcnc.axislog.log import decode_text
 from ilcnc.errors import MapError
 from ilcnc.fileio import read_bytes
+from ilcnc.units import AXIS_NAMES
 
 __all__ = [
     "SEED002_CIRCLE_CENTRE_MM",
@@ -149,7 +150,7 @@ __all__ = [
 Extrapolate = Literal["error", "clamp", "linear"]
 Method = Literal["linear", "cubic"]
 
-AXES = "xyz"
+AXES = "".join(AXIS_NAMES)
 PLANES = ("xy", "xz", "yz")
 
 #: Length units a column may carry, in mm per unit.

@@ -15,7 +15,7 @@ import shutil
 import pytest
 
 from ilcnc.cli import app
-from ilcnc.learning.learner import best_stats, grew
+from ilcnc.learning.guard import best_stats, grew
 from ilcnc.profile.load import load_profile
 from ilcnc.shop.state import LearnState
 from tests.integration._lcnc import PROFILE, REPO, cli_json, needs_linuxcnc, runner
