@@ -16,6 +16,7 @@ import typer
 
 from ilcnc import __version__
 from ilcnc.errors import IlcncError, InputError, UsageError
+from ilcnc.units import AXIS_NAMES, LENGTH_UNITS
 
 app = typer.Typer(
     add_completion=False,
@@ -229,12 +230,12 @@ def simulate(
 
 def _check_log_options(log_format: str, log_units: str) -> None:
     """Refuse an unknown ``--log-format`` or ``--log-units`` (a usage error: exit 2, as typer's own)."""
-    if log_format not in ("auto", "ilcnc", "halsampler", "tncscope"):
-        typer.echo(f"error: --log-format must be auto, ilcnc, halsampler or tncscope, got {log_format!r}", err=True)
-        raise typer.Exit(2)
-    if log_units not in ("mm", "inch"):
-        typer.echo(f"error: --log-units must be mm or inch, got {log_units!r}", err=True)
-        raise typer.Exit(2)
+    from ilcnc.axislog.detect import LOG_FORMATS
+
+    if log_format not in LOG_FORMATS:
+        _fail(UsageError("--log-format", f"must be {', '.join(LOG_FORMATS[:-1])} or {LOG_FORMATS[-1]}, got {log_format!r}"))
+    if log_units not in LENGTH_UNITS:
+        _fail(UsageError("--log-units", f"must be {' or '.join(LENGTH_UNITS)}, got {log_units!r}"))
 
 
 def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_units: str, log_columns: str | None,
@@ -479,12 +480,13 @@ def identify(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Fit a drive model to a measured step response; print parameters, confidence intervals and fit quality."""
+    from ilcnc.axislog.detect import LOG_FORMATS
+    from ilcnc.learning.identification import MODEL_ALIASES, MODELS, SIGNALS
     from ilcnc.learning.step_files import identify_file
 
-    for name, value, allowed in (("--model", model, ("sopdt", "mass_damper", "mass_damper_pid", "first_order_delay")),
-                                 ("--signal", signal, (None, "velocity", "position")),
-                                 ("--format", fmt, ("auto", "step", "ilcnc", "halsampler", "tncscope")),
-                                 ("--units", units, ("mm", "inch")), ("--axis", axis.lower(), ("x", "y", "z"))):
+    for name, value, allowed in (("--model", model, (*MODELS, *MODEL_ALIASES)), ("--signal", signal, (None, *SIGNALS)),
+                                 ("--format", fmt, ("auto", "step", *(f for f in LOG_FORMATS if f != "auto"))),
+                                 ("--units", units, LENGTH_UNITS), ("--axis", axis.lower(), AXIS_NAMES)):
         if value not in allowed:
             typer.echo(f"error: {name} must be one of {', '.join(a for a in allowed if a)}, got {value!r}", err=True)
             raise typer.Exit(2)

@@ -11,10 +11,12 @@ programs (upper case, the words of G-code and Klartext), ``CENTER_LETTERS`` for 
 
 from __future__ import annotations
 
-__all__ = ["AXIS_LETTERS", "AXIS_NAMES", "CENTER_LETTERS", "MM_PER_INCH"]
+__all__ = ["AXIS_LETTERS", "AXIS_NAMES", "CENTER_LETTERS", "LENGTH_UNITS", "MM_PER_INCH"]
 
 #: Millimetres per inch (exact, by definition).
 MM_PER_INCH = 25.4
+#: The length units a program, a profile or a log may be in.
+LENGTH_UNITS: tuple[str, ...] = ("mm", "inch")
 #: The linear axes, lower case, in this order (profiles, logs, JSON).
 AXIS_NAMES: tuple[str, ...] = ("x", "y", "z")
 #: The linear axes' words in a part program, upper case, in this order.

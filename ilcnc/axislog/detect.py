@@ -11,6 +11,7 @@ from ilcnc.axislog.log import AxisLog, decode_text, read_axis_log
 from ilcnc.axislog.tncscope import read_tncscope
 from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes
+from ilcnc.units import LENGTH_UNITS
 
 __all__ = ["LOG_FORMATS", "detect_log_format", "read_log"]
 
@@ -22,7 +23,7 @@ __all__ = ["LOG_FORMATS", "detect_log_format", "read_log"]
 
 #: Values of the ``fmt`` argument of :func:`read_log`.
 LOG_FORMATS: tuple[str, ...] = ("auto", "ilcnc", "halsampler", "tncscope")
-_LOG_UNITS = ("mm", "inch")
+_LOG_UNITS = LENGTH_UNITS
 
 
 def _head_lines(p: Path, size: int = 65536) -> list[str]:
