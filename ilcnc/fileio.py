@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
+import threading
 from pathlib import Path
 
 from ilcnc.errors import InputError
@@ -31,8 +33,35 @@ def same_file(a: str | Path, b: str | Path) -> bool:
         return pa.resolve() == pb.resolve()
 
 
+_UMASK_LOCK = threading.Lock()
+
+
+def current_umask() -> int:
+    """The process's umask (read from ``/proc/self/status`` where it is, else set and restored at once)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    with _UMASK_LOCK:
+        mask = os.umask(0o022)
+        os.umask(mask)
+    return mask
+
+
+def output_mode(dest: Path) -> int:
+    """The permissions an output gets: those of the file it replaces, else ``0o666`` less the umask (what
+    ``open()`` would give a new file; ``mkstemp`` alone gives ``0o600``)."""
+    try:
+        return stat.S_IMODE(os.stat(dest).st_mode)
+    except OSError:
+        return 0o666 & ~current_umask()
+
+
 def write_atomic(path: str | Path, data: bytes | str, *, protect: tuple[str | Path, ...] = ()) -> Path:
-    """Write ``data`` to ``path`` atomically (temporary file + rename).
+    """Write ``data`` to ``path`` atomically (temporary file + rename), with the permissions of the file it
+    replaces or, for a new file, those the user's umask gives (:func:`output_mode`).
 
     Parameters
     ----------
@@ -53,8 +82,10 @@ def write_atomic(path: str | Path, data: bytes | str, *, protect: tuple[str | Pa
     parent = dest.parent if str(dest.parent) else Path(".")
     if not parent.is_dir():
         raise InputError(dest, None, f"output directory {parent} does not exist")
+    mode = output_mode(dest)
     fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=parent)
     try:
+        os.fchmod(fd, mode)
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
