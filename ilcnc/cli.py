@@ -193,9 +193,7 @@ def simulate(
     if compare is not None:
         bad = [o for o, v in (("--out", out), ("--against", against), ("--schedule", schedule)) if v is not None]
         if bad:
-            typer.echo(f"error: --compare judges the virtual CNC on PROGRAM as it is: it does not go with {bad[0]}",
-                       err=True)
-            raise typer.Exit(1)
+            _fail(UsageError("--compare", f"judges the virtual CNC on PROGRAM as it is: it does not go with {bad[0]}"))
         _compare(program, profile, compare, log_format, log_units, log_columns, _parse_offset(log_offset), as_json)
         return
     try:
@@ -228,9 +226,17 @@ def simulate(
     _print_simulation(result, prog, console, out)
 
 
-def _check_log_options(log_format: str, log_units: str) -> None:
-    """Refuse an unknown ``--log-format`` or ``--log-units`` (a usage error: exit 2, as typer's own)."""
+def _check_log_options(log_format: str, log_units: str, log_columns: str | None = None) -> None:
+    """Refuse an unknown ``--log-format``, ``--log-units`` or ``--log-columns`` name (a usage error: exit 2, as
+    typer's own)."""
     from ilcnc.axislog.detect import LOG_FORMATS
+    from ilcnc.axislog.halsampler import halsampler_column_map
+
+    if log_columns is not None:
+        try:
+            halsampler_column_map(None, log_columns)
+        except InputError as exc:
+            _fail(UsageError("--log-columns", f"names the columns of a halsampler log: {exc.problem}"))
 
     if log_format not in LOG_FORMATS:
         _fail(UsageError("--log-format", f"must be {', '.join(LOG_FORMATS[:-1])} or {LOG_FORMATS[-1]}, got {log_format!r}"))
@@ -246,7 +252,7 @@ def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_
     from ilcnc.program import read_program
     from ilcnc.shop.fidelity import TARGET_CORRELATION, TARGET_DIFFERENCE, fidelity_of_log
 
-    _check_log_options(log_format, log_units)
+    _check_log_options(log_format, log_units, log_columns)
     try:
         prof = load_profile(profile)
         prog = read_program(program, default_units=prof.machine.units)
@@ -388,7 +394,12 @@ def learn(
     """
     from ilcnc.shop.workflow import LearnRequest, learn_part
 
-    _check_log_options(log_format, log_units)
+    _check_log_options(log_format, log_units, log_columns)
+    try:
+        _finite("--log-period", log_period, lo=0.0, open_lo=True, hi=1.0, unit="s")  # a sample period: µs to ms
+        _finite("--points-reach", points_reach, lo=0.0, open_lo=True, unit="mm")
+    except UsageError as exc:
+        _fail(exc)
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
                        log_period_s=log_period, points_reach_mm=points_reach, log_columns=log_columns,
                        log_offset=_parse_offset(log_offset), force=force,

@@ -90,7 +90,7 @@ def test_compare_does_not_mix_with_other_runs(logs: dict[str, Path], tmp_path: P
     val = tmp_path / "x.csv" if opt == "--out" else JSDC
     res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(logs["same"]),
                               opt, str(val)])
-    assert res.exit_code == 1
+    assert res.exit_code == 2  # a usage error (issue 25 item 17)
     assert res.output.strip() == f"error: --compare judges the virtual CNC on PROGRAM as it is: it does not go with {opt}"
     assert not (tmp_path / "x.csv").exists()
 
@@ -155,7 +155,7 @@ def test_log_columns_name_what_is_wrong(logs: dict[str, Path], tmp_path: Path) -
                       ("line x_act x_act z_act x_ref y_ref z_ref", "halsampler column 'x_act' given twice")):
         res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(hal),
                                   "--log-format", "halsampler", "--log-columns", cols])
-        assert res.exit_code == 1, res.output
+        assert res.exit_code == 2, res.output  # the option is wrong whatever the file: a usage error
         assert res.output.startswith("error: ") and msg in res.output and len(res.output.strip().splitlines()) == 1
     res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(logs["same"]),
                               "--log-columns", " ".join(ORDER)])

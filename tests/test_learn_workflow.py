@@ -114,9 +114,9 @@ def test_force_replaces_an_earlier_run_but_never_an_input(tmp_path) -> None:
 def test_measured_loop_three_steps_and_refusals(tmp_path) -> None:
     st = tmp_path / "st"
     run0 = _simulate_log(JSDC, tmp_path / "run0.csv")
-    # a log needs a state directory
+    # a log needs a state directory: a usage error (issue 25 item 17: exit 2, the option named)
     code, msg = _run("learn", JSDC, "--profile", SEED004, "--log", run0, "--out", tmp_path / "x.gcode")
-    assert code == 1 and "--state" in _error_line(msg)
+    assert code == 2 and "--state" in _error_line(msg)
     rms = []
     prog = JSDC
     log = run0

@@ -9,7 +9,7 @@ from ilcnc._lazy import lazy_exports
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
     'detect': ('LOG_FORMATS', 'detect_log_format', 'read_log'),
-    'halsampler': ('HALSAMPLER_COLUMNS', 'commands_from_lines', 'moves_from_lines', 'read_halsampler'),
+    'halsampler': ('HALSAMPLER_COLUMNS', 'commands_from_lines', 'halsampler_column_map', 'moves_from_lines', 'read_halsampler'),
     'log': (
         'AXIS_LOG_HEADER', 'AxisLog', 'check_sample_times', 'decode_text', 'format_axis_log', 'norm_unit',
         'read_axis_log', 'write_axis_log'

@@ -20,7 +20,7 @@ from ilcnc.axislog.log import AxisLog
 from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes
 
-__all__ = ["HALSAMPLER_COLUMNS", "commands_from_lines", "moves_from_lines", "read_halsampler"]
+__all__ = ["HALSAMPLER_COLUMNS", "commands_from_lines", "halsampler_column_map", "moves_from_lines", "read_halsampler"]
 
 
 # ---------------------------------------------------------------------------
@@ -36,7 +36,7 @@ HALSAMPLER_COLUMNS: tuple[str, ...] = ("n", "line", "x_ref", "y_ref", "z_ref", "
 _HALSAMPLER_NAMES = ("n", "line", "x_ref", "y_ref", "z_ref", "x_act", "y_act", "z_act")
 
 
-def _halsampler_column_map(path: Path, columns: object) -> dict[str, int]:
+def halsampler_column_map(path: Path | None, columns: object) -> dict[str, int]:
     """Normalise ``columns`` (names in file order, or name -> 0-based column) to name -> column."""
     if isinstance(columns, str):
         columns = [c.strip() for c in columns.replace(",", " ").split()]
@@ -121,7 +121,7 @@ def read_halsampler(
     p = Path(path)
     if not (period_s > 0 and math.isfinite(period_s)):
         raise InputError(None, None, f"halsampler period must be a positive number of seconds, got {period_s!r}")
-    cmap = _halsampler_column_map(p, columns)
+    cmap = halsampler_column_map(p, columns)
     ncols = max(cmap.values()) + 1
     text = read_bytes(p).decode("utf-8", errors="replace")
     raw = text.splitlines()

@@ -133,6 +133,8 @@ def read_axis_log(path: str | Path, *, max_gap_periods: float = 1.5) -> AxisLog:
     col = {name: i for i, name in enumerate(header)}
     want = [c for c in AXIS_LOG_HEADER if c in col]
     body = lines[h + 1:]
+    while body and not body[-1].strip():  # blank lines after the last sample (an editor's, a copy's) end nothing
+        body.pop()
     first = h + 2  # file line number of body[0]
     if not body:
         raise InputError(p, None, "axis log has a header but no samples")

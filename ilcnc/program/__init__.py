@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from ilcnc.errors import ProgramError
 from ilcnc.fileio import read_bytes
 from ilcnc.program.model import Program
 
@@ -26,6 +27,17 @@ def is_heidenhain(path: Path, data: bytes) -> bool:
     return _BEGIN_PGM.match(data[:200]) is not None
 
 
+def _check_bytes(path: Path, data: bytes) -> None:
+    """Refuse what the controls refuse before a word is read: a UTF-8 byte-order mark (LinuxCNC: "Bad
+    character"), and line ends of a lone CR (classic Mac OS), which a control reads as one long line."""
+    if data.startswith(b"\xef\xbb\xbf"):
+        raise ProgramError(path, 1, "the file starts with a UTF-8 byte-order mark, which LinuxCNC refuses ('Bad"
+                                    " character'): save it without one (plain ASCII or UTF-8 without BOM)")
+    if b"\n" not in data and data.count(b"\r") > 1:
+        raise ProgramError(path, 1, "its lines end in CR alone (classic Mac OS), so a control reads the file as one"
+                                    " line: convert the line ends to LF or CR LF")
+
+
 def read_program(path: str | Path, *, default_units: str = "mm", data: bytes | None = None) -> Program:
     """Read a part program (G-code or Klartext) into a :class:`Program`.
 
@@ -41,6 +53,7 @@ def read_program(path: str | Path, *, default_units: str = "mm", data: bytes | N
     p = Path(path)
     if data is None:
         data = read_bytes(p)
+    _check_bytes(p, data)
     if is_heidenhain(p, data):
         from ilcnc.program.heidenhain import read_heidenhain
 

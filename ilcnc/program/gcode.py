@@ -38,6 +38,7 @@ from ilcnc.program.model import (
     FLAG_HOME,
     FLAG_MACHINE,
     FLAG_PARAMETRIC,
+    MAX_ARC_TURNS,
     MOVE_ARC_CCW,
     MOVE_ARC_CW,
     MOVE_LINE,
@@ -100,6 +101,8 @@ _UNSUPPORTED_G = {
 _RADIUS_TOLERANCE_MM = 0.00127
 
 
+#: G codes that use a Q word (G5, G10, G64, G73, G76, G83), as round(value * 10).
+_Q_CODES = frozenset({50, 100, 640, 730, 760, 830})
 _CYCLES = frozenset({730, 810, 820, 830, 850, 860, 890})
 _CS_CODES = {540: 1, 550: 2, 560: 3, 570: 4, 580: 5, 590: 6, 591: 7, 592: 8, 593: 9}
 
@@ -196,6 +199,12 @@ class _Interpreter:
             motion_codes = [c for c in motion_codes if c != 800]
         if len(motion_codes) > 1:
             raise self.error(line, "two G codes of the motion group in one block")
+        if "Q" in letters:  # rs274 refuses a Q no code of the block uses (a G1 with Q is a typo, not a feed)
+            moving = motion_codes[0] if motion_codes else (st.motion if any(a in letters for a in "XYZABCUVW") else None)
+            if not (any(c in _Q_CODES for c in gcodes) or moving in _Q_CODES
+                    or any(m in (19, 66, 67, 68) or 100 <= m <= 199 for m in mcodes)):
+                raise self.error(line, "Q word with no G5, G10, G64, G73, G76, G83, M19, M66, M67, M68 or user M code"
+                                       " that uses it")
         # order of execution (RS274/NGC): feed mode, F, S, plane, units, comp, cs, distance, group 0, motion
         for c in gcodes:
             if c in (930, 940, 950):
@@ -796,6 +805,8 @@ class _Interpreter:
             pv = letters["P"].value
             if pv < 1 or abs(pv - round(pv)) > 1e-6:
                 raise self.error(line, f"arc P{pv:g} must be a positive integer number of turns")
+            if pv > MAX_ARC_TURNS:
+                raise self.error(line, f"arc P{pv:g}: at most {MAX_ARC_TURNS:,} turns of one arc or helix")
             turns = round(pv)
         if rw is not None:
             if cwords[a1] is not None or cwords[a2] is not None:

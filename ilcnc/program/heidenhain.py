@@ -133,6 +133,7 @@ from ilcnc.program.model import (
     FLAG_PARAMETRIC,
     FLAG_POLAR,
     FLAG_REPEATED,
+    MAX_ARC_TURNS,
     MOVE_ARC_CCW,
     MOVE_ARC_CW,
     MOVE_LINE,
@@ -911,6 +912,8 @@ class _Interp:
             raise Stop(line, "CP without an angle PA / IPA")
         sweep = self.cp_sweep(a, inc_a, a0, dr, line)
         n = abs(sweep) / 360.0
+        if n > MAX_ARC_TURNS:
+            raise ProgramError(self.path, line, f"CP sweeps {n:,.0f} turns: at most {MAX_ARC_TURNS:,} turns of one arc or helix")
         full = abs(n - round(n)) < 1e-9 and round(n) >= 1
         turns = round(n) if full else math.floor(n) + 1
         end, param = self.target(mo, line)

@@ -64,6 +64,10 @@ PLANE_XY = 17
 PLANE_XZ = 18
 PLANE_YZ = 19
 
+#: Most full turns of one arc or helix (G-code ``P``, Klartext ``CP IPA``): far above any thread or
+#: helical ramp (tens of turns), far below the 16-bit turn count of the move table; more is refused.
+MAX_ARC_TURNS = 10_000
+
 #: (first, second, linear) axis index of each plane, as RS-274 orders them: the arc turns in the
 #: (first, second) plane, clockwise seen from the plane's positive normal.
 PLANE_AXES: dict[int, tuple[int, int, int]] = {PLANE_XY: (0, 1, 2), PLANE_XZ: (2, 0, 1), PLANE_YZ: (1, 2, 0)}

@@ -84,6 +84,27 @@ def _job(program: Path, profile: Path, out_dir: Path, iterations: int | None, ta
     return BatchJob(str(program), str(profile), str(out), str(out_dir / f"{stem}.state"), iterations)
 
 
+#: Most iterations a manifest may ask for (as ``--iterations``).
+MAX_ITERATIONS = 1000
+
+
+def _short(value: object, limit: int = 60) -> str:
+    """``repr(value)``, cut to ``limit`` characters (a message names a value, it does not print a file)."""
+    r = repr(value)
+    return r if len(r) <= limit else r[: limit - 5] + " ...)"
+
+
+def _profile_list(src: Path, key: str, value: object) -> list[str]:
+    """A manifest's profile entry as a list of file names: one name, or a list of names."""
+    if value is None:
+        return []
+    if isinstance(value, (str, Path)):
+        return [str(value)]
+    if isinstance(value, list) and all(isinstance(v, (str, Path)) for v in value):
+        return [str(v) for v in value]
+    raise InputError(src, None, f"{key}: must be a profile file name or a list of them, got {_short(value)}")
+
+
 def jobs_from_path(source: str | Path, profile: str | Path | None, out_dir: str | Path, *,
                    iterations: int | None = None) -> list[BatchJob]:
     """The jobs of a folder (every program file in it, sorted) or of a manifest.
@@ -115,15 +136,18 @@ def jobs_from_path(source: str | Path, profile: str | Path | None, out_dir: str 
         if not isinstance(data, dict) or not isinstance(data.get("parts"), list) or not data["parts"]:
             raise InputError(src, None, "a manifest needs a 'parts' list of {program: ..., profiles: [...]}")
         base = src.parent
-        default_profiles = data.get("profiles", [profile] if profile is not None else [])
+        default_profiles = _profile_list(src, "profiles", data.get("profiles", [profile] if profile is not None else []))
         its = data.get("iterations", iterations)
+        if its is not None and (isinstance(its, bool) or not isinstance(its, int) or not 1 <= its <= MAX_ITERATIONS):
+            raise InputError(src, None, f"iterations: must be a whole number from 1 to {MAX_ITERATIONS}, got {_short(its)}")
         pairs: list[tuple[Path, Path]] = []
         for i, part in enumerate(data["parts"], start=1):
             if not isinstance(part, dict) or "program" not in part:
                 raise InputError(src, None, f"part {i} has no 'program'")
-            profs = part.get("profiles", part.get("profile", default_profiles))
-            if isinstance(profs, str):
-                profs = [profs]
+            if not isinstance(part["program"], str):
+                raise InputError(src, None, f"part {i}: program must be a file name, got {_short(part['program'])}")
+            key = "profiles" if "profiles" in part else "profile"
+            profs = _profile_list(src, f"part {i}: {key}", part.get(key, default_profiles))
             if not profs:
                 raise InputError(src, None, f"part {i} ({part['program']}) has no profile and no default profile")
             for pr in profs:

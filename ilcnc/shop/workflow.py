@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc.errors import LogError, StateError
+from ilcnc.errors import InputError, LogError, StateError, UsageError
 from ilcnc.fileio import read_bytes, write_atomic
 from ilcnc.learning.guard import LearningGuard
 from ilcnc.learning.learner import (
@@ -569,8 +569,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     from ilcnc.shop.measure import measure_log, measure_points
 
     if req.state is None:
-        raise StateError(None, None, "--log/--points make one learning step per run on the machine: give --state DIR to"
-                         " keep the learning state between runs")
+        raise UsageError("--log/--points", "make one learning step per run on the machine: give --state DIR to keep the"
+                         " learning state between runs")
     source = req.log if req.log is not None else req.points
     assert source is not None
     src_bytes = read_bytes(source)
@@ -767,10 +767,8 @@ def learn_part(req: LearnRequest, *, progress: Callable[[int, int, str], None] |
     InputError
         Bad program, profile, measurement or state (one-line message).
     """
-    from ilcnc.errors import InputError
-
     if req.log is not None and req.points is not None:
-        raise InputError(None, None, "give either --log or --points, not both")
+        raise UsageError("--log", "and --points do not go together: give either, not both")
     profile = load_profile(req.profile).with_cutting_top(req.cutting_below_z_mm)
     profile_sha = sha256_bytes(read_bytes(req.profile))
     data = read_bytes(req.program)

@@ -1,0 +1,105 @@
+"""Bad input that crashed, or was read wrong, or refused with the wrong exit code (issue 25 items 13, 15, 17).
+
+Each case failed before its fix: a traceback (int16 overflow of an arc's turn count, a TypeError on a
+manifest), a misleading message (a byte-order mark read as the word 'ï', CR line ends read as one block), a
+silently accepted word (Q on a G1, which rs274 refuses), a log refused for a blank line after its last
+sample, and usage errors that exited 1 instead of 2.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from ilcnc.cli import app
+
+REPO = Path(__file__).resolve().parents[1]
+MILL = REPO / "configs" / "example-mill.yaml"
+STAR = REPO / "samples" / "own" / "star.ngc"
+runner = CliRunner()
+
+
+def _one_error(res: object, code: int) -> str:
+    assert res.exception is None or isinstance(res.exception, SystemExit), res.exception  # type: ignore[attr-defined]
+    assert res.exit_code == code, res.output  # type: ignore[attr-defined]
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]  # type: ignore[attr-defined]
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
+
+
+@pytest.mark.parametrize(("name", "text", "says"), [
+    ("turns.ngc", b"G21 G90 G17\nG0 X0 Y0 Z1\nG1 Z-1 F100\nG2 X0 Y0 I5 J0 P32768\nM2\n",
+     "turns.ngc:4: arc P32768: at most 10,000 turns of one arc or helix"),
+    ("turns.h", b"0 BEGIN PGM T MM\n1 TOOL CALL 1 Z S1000\n2 L X+10 Y+0 Z+5 R0 FMAX\n3 CC X+0 Y+0\n4 L Z-1 F100\n"
+                b"5 CP IPA+99999999 IZ-1 DR+\n6 END PGM T MM\n",
+     "turns.h:6: CP sweeps 277,778 turns: at most 10,000 turns of one arc or helix"),
+    ("q.ngc", b"G21 G90\nG0 X0 Y0\nG1 X10 Q5 F100\nM2\n",
+     "q.ngc:3: Q word with no G5, G10, G64, G73, G76, G83, M19, M66, M67, M68 or user M code that uses it"),
+    ("bom.ngc", b"\xef\xbb\xbfG21 G90\nG0 X0 Y0\nG1 X10 F100\nM2\n", "bom.ngc:1: the file starts with a UTF-8 byte-order mark"),
+    ("cr.ngc", b"G21 G90\rG0 X0 Y0\rG1 X10 F100\rM2\r", "cr.ngc:1: its lines end in CR alone (classic Mac OS)"),
+])
+def test_a_program_the_controls_refuse_is_refused_with_its_line(tmp_path: Path, name: str, text: bytes, says: str) -> None:
+    p = tmp_path / name
+    p.write_bytes(text)
+    line = _one_error(runner.invoke(app, ["inspect", str(p)]), 1)
+    assert line.startswith(f"error: {p.parent}/{says}") or line.startswith(f"error: {tmp_path / says}"), line
+
+
+def test_q_is_read_where_a_code_uses_it(tmp_path: Path) -> None:
+    p = tmp_path / "q2.ngc"  # a G83 hole, the next hole of the modal cycle, G64 P Q: all rs274 accepts
+    p.write_bytes(b"G21 G90\nG0 X0 Y0 Z5\nG83 X1 Y1 Z-5 R1 Q1 F100\nX2 Y2 Q0.5\nG80\nG64 P0.01 Q0.01\nM2\n")
+    assert runner.invoke(app, ["inspect", str(p)]).exit_code == 0
+
+
+@pytest.mark.parametrize(("head", "says"), [
+    ("profiles: 5", "profiles: must be a profile file name or a list of them, got 5"),
+    ("profiles: [{a: 1}]", "profiles: must be a profile file name or a list of them, got [{'a': 1}]"),
+    ("iterations: abc", "iterations: must be a whole number from 1 to 1000, got 'abc'"),
+    ("iterations: 1000000", "iterations: must be a whole number from 1 to 1000, got 1000000"),
+    ("iterations: -3", "iterations: must be a whole number from 1 to 1000, got -3"),
+    (f"profiles: ['{'x' * 300}']\nparts:\n  - program: star.ngc\n    profiles: {{p: 1}}",
+     "part 1: profiles: must be a profile file name or a list of them, got {'p': 1}"),
+])
+def test_a_bad_manifest_is_one_line_not_a_type_error(tmp_path: Path, head: str, says: str) -> None:
+    shutil.copy(STAR, tmp_path / "star.ngc")
+    body = head if "parts:" in head else head + "\nparts:\n  - program: star.ngc\n"
+    (tmp_path / "m.yaml").write_text(body)
+    line = _one_error(runner.invoke(app, ["batch", str(tmp_path / "m.yaml"), "--out", str(tmp_path / "out"),
+                                          "--profile", str(MILL)]), 1)
+    assert line == f"error: {tmp_path / 'm.yaml'}: {says}"
+    assert len(line) < 200  # a message names a value, it does not print it whole
+
+
+def test_a_blank_line_after_the_last_sample_of_a_log_is_no_error(tmp_path: Path) -> None:
+    log = tmp_path / "run0.csv"
+    assert runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--out", str(log)]).exit_code == 0
+    blank = tmp_path / "run0-blank.csv"
+    blank.write_bytes(log.read_bytes() + b"\n\n")
+    outs = []
+    for i, lg in enumerate((log, blank)):
+        res = runner.invoke(app, ["learn", str(STAR), "--profile", str(MILL), "--log", str(lg), "--state",
+                                  str(tmp_path / f"st{i}"), "--out", str(tmp_path / f"star.{i}.ngc")])
+        assert res.exit_code == 0, res.output
+        outs.append((tmp_path / f"star.{i}.ngc").read_bytes())
+    assert outs[0] == outs[1]
+
+
+@pytest.mark.parametrize(("args", "says"), [
+    (["learn", STAR, "--profile", MILL, "--out", "o.ngc", "--log", "run0.csv", "--points", "run0.csv", "--state", "s"],
+     "error: --log and --points do not go together"),
+    (["learn", STAR, "--profile", MILL, "--out", "o.ngc", "--log", "run0.csv"], "error: --log/--points make one"),
+    (["simulate", STAR, "--profile", MILL, "--compare", "run0.csv", "--out", "x.csv"], "error: --compare judges"),
+    (["learn", STAR, "--profile", MILL, "--out", "o.ngc", "--log", "run0.csv", "--state", "s", "--log-columns",
+      "n line foo"], "error: --log-columns names the columns of a halsampler log: unknown halsampler column name(s) foo"),
+    (["learn", STAR, "--profile", MILL, "--out", "o.ngc", "--log", "run0.csv", "--state", "s", "--log-period", "inf"],
+     "error: --log-period must be a finite number > 0 and <= 1 s, got inf"),
+])
+def test_usage_errors_exit_2_naming_the_option(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, args: list, says: str) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--out", "run0.csv"]).exit_code == 0
+    line = _one_error(runner.invoke(app, [str(a) for a in args]), 2)
+    assert line.startswith(says), line
+    assert not (tmp_path / "o.ngc").exists() and not (tmp_path / "s").exists() and not (tmp_path / "x.csv").exists()
