@@ -103,3 +103,27 @@ def test_usage_errors_exit_2_naming_the_option(tmp_path: Path, monkeypatch: pyte
     line = _one_error(runner.invoke(app, [str(a) for a in args]), 2)
     assert line.startswith(says), line
     assert not (tmp_path / "o.ngc").exists() and not (tmp_path / "s").exists() and not (tmp_path / "x.csv").exists()
+
+
+def test_outputs_are_checked_against_the_inputs_before_any_work(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 25 items 6 and 7: --report over the log (named summary.csv), --out over the program (the whole loop
+    ran and wrote P.state/ before refusing), --out inside the state (damaged it for good)."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copy(STAR, "star.ngc")
+    assert runner.invoke(app, ["simulate", "star.ngc", "--profile", str(MILL), "--out", "summary.csv"]).exit_code == 0
+    log = (tmp_path / "summary.csv").read_bytes()
+    line = _one_error(runner.invoke(app, ["learn", "star.ngc", "--profile", str(MILL), "--out", "o.ngc", "--log",
+                                          "summary.csv", "--state", "S1", "--report", "."]), 1)
+    assert line == "error: .: holds the log as summary.csv, a file the report writes: choose another folder for --report"
+    assert (tmp_path / "summary.csv").read_bytes() == log and not (tmp_path / "S1").exists()
+    line = _one_error(runner.invoke(app, ["learn", "star.ngc", "--profile", str(MILL), "--out", "star.ngc"]), 1)
+    assert line == "error: star.ngc: is the program of this run: choose another output path (--out)"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["star.ngc", "summary.csv"]  # no state, nothing else
+    first = runner.invoke(app, ["learn", "star.ngc", "--profile", str(MILL), "--out", "o1.ngc", "--log", "summary.csv",
+                                "--state", "S1"])
+    assert first.exit_code == 0, first.output
+    state = {p: p.read_bytes() for p in (tmp_path / "S1").rglob("*") if p.is_file()}
+    line = _one_error(runner.invoke(app, ["learn", "o1.ngc", "--profile", str(MILL), "--out", "S1/iter-002.ngc",
+                                          "--log", "summary.csv", "--state", "S1"]), 1)
+    assert line.startswith("error: S1/iter-002.ngc: is inside the learning state S1")
+    assert {p: p.read_bytes() for p in (tmp_path / "S1").rglob("*") if p.is_file()} == state

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,7 +53,7 @@ from ilcnc.units import AXIS_LETTERS
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["MAX_PLOT_POINTS", "CommandDiff", "ReportRun", "write_report"]
+__all__ = ["MAX_PLOT_POINTS", "REPORT_FILES", "CommandDiff", "ReportRun", "is_report_file", "write_report"]
 
 MAX_PLOT_POINTS = 200_000
 """Largest number of points of one plotted line."""
@@ -559,6 +560,17 @@ def _commands(diff: CommandDiff) -> tuple[str, int, int, float]:
 
 # --------------------------------------------------------------------------- entry point
 
+
+
+#: The files a report folder receives (``NNN``: an iteration number); :func:`is_report_file` tells them.
+REPORT_FILES = ("summary.csv", "summary.md", "commands.csv", "error-along-path.png", "error-vs-iteration.png",
+                "refined-corner.png", "path-iterNNN.png", "error-iterNNN.png")
+_REPORT_FILE = re.compile("|".join(re.escape(n).replace("NNN", r"\d{3,}") for n in REPORT_FILES))
+
+
+def is_report_file(name: str) -> bool:
+    """A report could write a file of this name (an input named so must not be in the report folder)."""
+    return _REPORT_FILE.fullmatch(name) is not None
 
 def write_report(out_dir: Path, *, program_name: str, path_mm: np.ndarray, runs: list[ReportRun], diff: CommandDiff,
                  magnify: float | None = None, status: str = "", message: str = "",

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.errors import InputError, LogError, StateError, UsageError
-from ilcnc.fileio import read_bytes, write_atomic
+from ilcnc.fileio import read_bytes, same_file, write_atomic
 from ilcnc.learning.guard import LearningGuard
 from ilcnc.learning.learner import (
     Clip,
@@ -759,6 +759,34 @@ def _report_measured(req: LearnRequest, state: LearnState, meas: Any, clips: lis
 # ---------------------------------------------------------------------------------------------
 
 
+def _inside(path: Path, folder: Path) -> bool:
+    """``path`` is ``folder`` or lies under it (after resolving links)."""
+    p, f = path.resolve(), folder.resolve()
+    return p == f or f in p.parents
+
+
+def _check_output_paths(req: LearnRequest) -> None:
+    """Refuse, before any work, outputs that would write over an input or into the learning state (issue 25
+    items 6 and 7): ``--out`` is no input and not inside ``--state``; ``--report DIR`` holds no input."""
+    inputs = [("the program", req.program), ("the profile", req.profile)]
+    inputs += [(what, p) for what, p in (("the log", req.log), ("the points", req.points)) if p is not None]
+    for what, p in inputs:
+        if same_file(req.out, p) or req.out.resolve() == p.resolve():
+            raise InputError(req.out, None, f"is {what} of this run: choose another output path (--out)")
+    if req.state is not None and _inside(req.out, req.state):
+        raise InputError(req.out, None, f"is inside the learning state {req.state}, which ilcnc keeps intact: choose"
+                         " an output path outside it (--out)")
+    if req.report is not None:
+        from ilcnc.shop.report import is_report_file
+
+        for what, p in inputs:
+            if p.exists() and p.resolve().parent == req.report.resolve() and is_report_file(p.name):
+                raise InputError(req.report, None, f"holds {what} as {p.name}, a file the report writes: choose another"
+                                 " folder for --report")
+        if req.state is not None and _inside(req.report, req.state):
+            raise InputError(req.report, None, f"is inside the learning state {req.state}: choose a folder outside it")
+
+
 def learn_part(req: LearnRequest, *, progress: Callable[[int, int, str], None] | None = None) -> LearnOutcome:
     """Run ``ilcnc learn``: virtual learning, or one step from a measurement; keep the state.
 
@@ -769,6 +797,7 @@ def learn_part(req: LearnRequest, *, progress: Callable[[int, int, str], None] |
     """
     if req.log is not None and req.points is not None:
         raise UsageError("--log", "and --points do not go together: give either, not both")
+    _check_output_paths(req)
     profile = load_profile(req.profile).with_cutting_top(req.cutting_below_z_mm)
     profile_sha = sha256_bytes(read_bytes(req.profile))
     data = read_bytes(req.program)
