@@ -19,8 +19,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     'linuxcnc_config': ('ini_in', 'read_ini', 'read_ini_text', 'scale_program_time', 'scaled_ini_text'),
     'measure': ('Measurement', 'interpolate_along_path', 'measure_log', 'measure_points'),
-    'report': ('CommandDiff', 'MAX_PLOT_POINTS', 'ReportRun', 'write_report'),
-    'state': ('IterationEntry', 'LearnState', 'STATE_FILE', 'sha256_bytes', 'sha256_file'),
+    'report': ('CommandDiff', 'MAX_PLOT_POINTS', 'REPORT_FILES', 'ReportRun', 'is_report_file', 'write_report'),
+    'state': ('IterationEntry', 'LearnState', 'STATE_FILE', 'sha256_bytes', 'sha256_file', 'state_lock'),
     'workflow': ('LearnOutcome', 'LearnRequest', 'find_stamp', 'learn_part', 'stamp_text', 'unstamp_text'),
 }
 

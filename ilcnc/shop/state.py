@@ -13,12 +13,22 @@ Every file is written atomically before ``state.json`` names it, and
 ``state.json`` records the SHA-256 of each, so a run killed mid-write leaves
 the previous state loadable, and a file changed behind ilcnc's back is
 refused. Nothing here is ever overwritten except ``state.json`` itself.
+
+One ``ilcnc learn`` at a time works on a state: :func:`state_lock` takes an
+exclusive ``fcntl`` lock on ``.DIR.lock`` beside it for the whole call and
+removes the file when done; the kernel frees the lock when the process ends,
+however it ends, so no lock is ever stale.
 """
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
+import os
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,10 +37,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.errors import StateError
-from ilcnc.fileio import read_bytes, write_atomic
+from ilcnc.fileio import output_mode, read_bytes, write_atomic
 from ilcnc.outcomes import LearnStatus
 
-__all__ = ["STATE_FILE", "IterationEntry", "LearnState", "sha256_bytes", "sha256_file"]
+__all__ = ["STATE_FILE", "IterationEntry", "LearnState", "sha256_bytes", "sha256_file", "state_lock"]
 
 STATE_FILE = "state.json"
 FORMAT = "ilcnc-learning-state"
@@ -295,3 +305,57 @@ class LearnState:
     @classmethod
     def exists(cls, directory: str | Path) -> bool:
         return (Path(directory) / STATE_FILE).is_file()
+
+
+@contextmanager
+def state_lock(directory: str | Path) -> Iterator[None]:
+    """Hold the learning state ``directory`` for one ``ilcnc learn``; refuse when another holds it.
+
+    The lock is ``fcntl.flock`` on ``.DIR.lock`` beside the state, removed again when the call ends (a lock
+    taken on a file another process removed meanwhile is retaken on the new one, so two callers never hold
+    it at once). A process killed while it holds the lock leaves the empty file and no lock: the next call
+    takes it.
+
+    Raises
+    ------
+    StateError
+        Another process holds the state (its pid and since when, from the lock file).
+    """
+    d = Path(directory)
+    if not d.parent.is_dir():  # nothing to lock yet; creating the state refuses a missing folder with its own message
+        yield
+        return
+    lock = d.parent / f".{d.name}.lock"
+    fd = -1
+    for _attempt in range(20):
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, output_mode(lock))
+        except OSError as exc:
+            raise StateError(d, None, f"cannot lock the learning state ({lock.name}: {exc.strerror})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            who = os.pread(fd, 200, 0).decode("utf-8", "replace").strip() or "another process"
+            os.close(fd)
+            raise StateError(d, None, f"is in use by another ilcnc learn ({who}): wait for it to end, or learn into"
+                             " another --state") from None
+        try:
+            same = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the holder before us removed the file: lock the one at the path now
+        fd = -1
+    if fd < 0:  # pragma: no cover - twenty removals in a row
+        raise StateError(d, None, "cannot lock the learning state: its lock file keeps changing")
+    try:
+        os.pwrite(fd, f"pid {os.getpid()}, since {time.strftime('%Y-%m-%d %H:%M:%S')}".encode(), 0)
+        yield
+    finally:
+        try:
+            os.unlink(lock)  # while still held: a caller that opened it meanwhile retakes the next one
+        except OSError:
+            pass
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        os.close(fd)

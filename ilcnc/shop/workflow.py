@@ -52,7 +52,7 @@ from ilcnc.profile.sections import MachineProfile
 from ilcnc.program import read_program
 from ilcnc.program.model import Program
 from ilcnc.shop.measure import path_position_mm
-from ilcnc.shop.state import IterationEntry, LearnState, sha256_bytes
+from ilcnc.shop.state import IterationEntry, LearnState, sha256_bytes, state_lock
 from ilcnc.vcnc.command_error import CommandSignal, error_kind
 
 __all__ = ["LearnOutcome", "LearnRequest", "find_stamp", "learn_part", "stamp_text", "unstamp_text"]
@@ -798,6 +798,12 @@ def learn_part(req: LearnRequest, *, progress: Callable[[int, int, str], None] |
     if req.log is not None and req.points is not None:
         raise UsageError("--log", "and --points do not go together: give either, not both")
     _check_output_paths(req)
+    with state_lock(req.state or _default_state_dir(req.out)):
+        return _learn_part(req, progress)
+
+
+def _learn_part(req: LearnRequest, progress: Callable[[int, int, str], None] | None) -> LearnOutcome:
+    """:func:`learn_part` with the state held."""
     profile = load_profile(req.profile).with_cutting_top(req.cutting_below_z_mm)
     profile_sha = sha256_bytes(read_bytes(req.profile))
     data = read_bytes(req.program)
