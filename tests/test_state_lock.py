@@ -54,3 +54,26 @@ def test_a_killed_holder_leaves_no_lock(tmp_path: Path) -> None:
             proc.kill()
     res = _learn(tmp_path)  # the kernel freed the lock with the process: taken at once
     assert res.exit_code == 0, res.output  # type: ignore[attr-defined]
+
+
+def test_what_a_killed_run_left_before_its_first_index_is_replaced(tmp_path: Path) -> None:
+    """Issue 25 item 11: a run killed between creating its state and writing state.json left a folder that
+    blocked every rerun ("is not empty and holds no learning state"). Its own files are replaced now; a folder
+    with anything else in it is still refused."""
+    s = tmp_path / "S"
+    s.mkdir()
+    (s / "original.ngc").write_bytes(STAR.read_bytes())
+    (s / "iter-000.ngc").write_bytes(STAR.read_bytes())
+    (s / "iter-000.corrections.csv").write_text("k,dx,dy,dz\n")
+    (s / ".iter-000.errors.csv.k2j4x.tmp").write_text("k,ex")
+    res = _learn(tmp_path)
+    assert res.exit_code == 0, res.output  # type: ignore[attr-defined]
+    assert (s / "state.json").is_file() and not list(s.glob(".*.tmp"))
+    t = tmp_path / "T"
+    t.mkdir()
+    (t / "original.ngc").write_bytes(STAR.read_bytes())
+    (t / "notes.txt").write_text("the operator's notes\n")
+    res = runner.invoke(app, ["learn", str(STAR), "--profile", str(MILL), "--out", str(tmp_path / "p.ngc"), "--state",
+                              str(t), "--iterations", "1"])
+    assert res.exit_code == 1 and "is not empty and holds no learning state" in res.output  # type: ignore[attr-defined]
+    assert (t / "notes.txt").read_text() == "the operator's notes\n" and (t / "original.ngc").exists()

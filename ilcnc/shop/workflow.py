@@ -212,6 +212,10 @@ def _default_state_dir(out: Path) -> Path:
     return out.with_name(out.name + ".state")
 
 
+#: The files a learning state holds (``state.json`` aside), and the atomic writer's temporary files.
+_STATE_FILE_NAME = re.compile(r"(original|refined|iter-\d{3,})\.[\w.]+|\..+\.tmp")
+
+
 def _new_state(directory: Path, program: Program, data: bytes, profile: MachineProfile, profile_sha: str, *,
                refined: bool = False) -> LearnState:
     if directory.exists() and not directory.is_dir():
@@ -219,7 +223,13 @@ def _new_state(directory: Path, program: Program, data: bytes, profile: MachineP
     if not directory.parent.is_dir():
         raise StateError(directory, None, f"parent directory {directory.parent} does not exist")
     directory.mkdir(exist_ok=True)
-    if any(directory.iterdir()):
+    left = list(directory.iterdir())
+    if left and all(_STATE_FILE_NAME.fullmatch(p.name) and p.is_file() for p in left):
+        # what a run killed before its first state.json left (issue 25 item 11): its own files, and no index that
+        # names them; no other run uses them (the state is locked), so the new run replaces them
+        for p in left:
+            p.unlink()
+    elif left:
         raise StateError(directory, None, "is not empty and holds no learning state: choose a new --state directory")
     suffix = program.path.suffix or ".nc"
     st = LearnState(directory, {"name": program.path.name, "sha256": sha256_bytes(data), "file": f"original{suffix}",
