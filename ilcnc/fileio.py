@@ -15,6 +15,8 @@ def read_bytes(path: str | Path) -> bytes:
     """Read a whole input file, turning OS errors into one-line input errors."""
     p = Path(path)
     try:
+        if p.exists() and not p.is_dir() and not p.is_file():  # a FIFO or a device would block or never end
+            raise InputError(p, None, "is not a regular file (a pipe or a device): give a file")
         return p.read_bytes()
     except FileNotFoundError:
         raise InputError(p, None, "file not found") from None

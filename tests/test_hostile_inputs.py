@@ -127,3 +127,57 @@ def test_outputs_are_checked_against_the_inputs_before_any_work(tmp_path: Path, 
                                           "--log", "summary.csv", "--state", "S1"]), 1)
     assert line.startswith("error: S1/iter-002.ngc: is inside the learning state S1")
     assert {p: p.read_bytes() for p in (tmp_path / "S1").rglob("*") if p.is_file()} == state
+
+
+def _no_hang(args: list[str], seconds: int = 60) -> object:
+    import signal
+
+    def _alarm(_signum: int, _frame: object) -> None:
+        raise TimeoutError
+
+    old = signal.signal(signal.SIGALRM, _alarm)
+    signal.alarm(seconds)
+    try:
+        return runner.invoke(app, args)
+    except TimeoutError:
+        pytest.fail(f"ilcnc {' '.join(args)} still runs after {seconds} s")
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+@pytest.mark.parametrize(("name", "text", "command", "says"), [
+    ("holes.ngc", b"G21 G90\nG0 X0 Y0 Z5\nG81 X1 Y1 Z-1 R1 L100000000 F100\nM2\n", "inspect",
+     "holes.ngc:3: L1e+08: at most 10,000 repeats of a canned cycle in one block"),
+    ("far.ngc", b"G21 G90\nG0 X0 Y0 Z5\nG1 Z-1 F100\nG1 X999999999 F100\nM2\n", "simulate",
+     "far.ngc:4: the program's motion takes at least 166,667 h at the profile's feeds"),
+    ("far.h", b"0 BEGIN PGM T MM\n1 TOOL CALL 1 Z S1000\n2 CYCL DEF 7.0 DATUM SHIFT\n3 CYCL DEF 7.1 X+999999999\n"
+              b"4 L X+0 Y+0 Z+5 R0 FMAX\n5 L Z-1 F100\n6 L X+10 F100\n7 END PGM T MM\n", "simulate",
+     "far.h:5: the program's motion takes at least"),  # the rapid to the shifted datum
+])
+def test_a_program_beyond_any_machine_is_refused_not_run_for_ever(tmp_path: Path, name: str, text: bytes, command: str,
+                                                                  says: str) -> None:
+    """Issue 25 item 14: these hung inspect or simulate."""
+    p = tmp_path / name
+    p.write_bytes(text)
+    args = ["inspect", str(p)] if command == "inspect" else ["simulate", str(p), "--profile", str(MILL)]
+    line = _one_error(_no_hang(args), 1)
+    assert line.startswith(f"error: {tmp_path / says}"), line
+
+
+def test_a_pipe_or_a_device_is_refused_not_read_for_ever(tmp_path: Path) -> None:
+    import os
+
+    fifo = tmp_path / "prog.ngc"
+    os.mkfifo(fifo)
+    for p in (fifo, Path("/dev/zero")):
+        line = _one_error(_no_hang(["inspect", str(p)]), 1)
+        assert line == f"error: {p}: is not a regular file (a pipe or a device): give a file"
+
+
+def test_a_feed_limit_no_machine_has_is_refused_when_the_profile_loads(tmp_path: Path) -> None:
+    text = MILL.read_text().replace("max_velocity_mm_min: 30000", "max_velocity_mm_min: 1e-300", 1)
+    assert "1e-300" in text
+    (tmp_path / "slow.yaml").write_text(text)
+    line = _one_error(_no_hang(["simulate", str(STAR), "--profile", str(tmp_path / "slow.yaml")]), 1)
+    assert line.endswith("max_velocity_mm_min: must be >= 1 and <= 1000000, got 1e-300"), line

@@ -291,7 +291,7 @@ def test_negative_jerk(tmp_path: Path) -> None:
     msg = error_of(tmp_path, text)
     assert (
         msg
-        == f"{tmp_path / 'mill.yaml'}:{line_of(text, '-5')}: axes.x.max_jerk_m_s3: must be > 0 and <= 100000, got -5"
+        == f"{tmp_path / 'mill.yaml'}:{line_of(text, '-5')}: axes.x.max_jerk_m_s3: must be >= 0.001 and <= 100000, got -5"
     )
 
 
@@ -299,7 +299,7 @@ def test_zero_velocity(tmp_path: Path) -> None:
     text = MINIMAL.replace("  y:\n    max_velocity_mm_min: 10000", "  y:\n    max_velocity_mm_min: 0")
     msg = error_of(tmp_path, text)
     assert msg.startswith(f"{tmp_path / 'mill.yaml'}:{line_of(text, 'max_velocity_mm_min: 0')}: ")
-    assert "axes.y.max_velocity_mm_min: must be > 0 and <= 1000000, got 0" in msg
+    assert "axes.y.max_velocity_mm_min: must be >= 1 and <= 1000000, got 0" in msg
 
 
 def test_unknown_key(tmp_path: Path) -> None:
@@ -603,7 +603,7 @@ def test_profile_from_dict_errors_name_the_path() -> None:
     bad = _with(d, ("axes", "z", "max_acceleration_m_s2"), -1)
     with pytest.raises(ProfileError) as info:
         profile_from_dict(bad, path="given.yaml")
-    assert str(info.value) == "given.yaml: axes.z.max_acceleration_m_s2: must be > 0 and <= 1000, got -1"
+    assert str(info.value) == "given.yaml: axes.z.max_acceleration_m_s2: must be >= 0.001 and <= 1000, got -1"
     with pytest.raises(ProfileError, match=r"^<input>: axes.z.max_acceleration_m_s2: "):
         profile_from_dict(bad)
     with pytest.raises(ProfileError, match="empty profile"):

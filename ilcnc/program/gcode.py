@@ -39,6 +39,7 @@ from ilcnc.program.model import (
     FLAG_MACHINE,
     FLAG_PARAMETRIC,
     MAX_ARC_TURNS,
+    MAX_CYCLE_REPEATS,
     MOVE_ARC_CCW,
     MOVE_ARC_CW,
     MOVE_LINE,
@@ -367,6 +368,8 @@ class _Interpreter:
             lv = letters["L"].value
             if lv < 0 or abs(lv - round(lv)) > 1e-6:
                 raise self.error(line, "L (repeat count) must be a non-negative integer")
+            if lv > MAX_CYCLE_REPEATS:
+                raise self.error(line, f"L{lv:g}: at most {MAX_CYCLE_REPEATS:,} repeats of a canned cycle in one block")
             repeats = round(lv)
         u = st.unit
         off = st.offset()

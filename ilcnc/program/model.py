@@ -67,6 +67,8 @@ PLANE_YZ = 19
 #: Most full turns of one arc or helix (G-code ``P``, Klartext ``CP IPA``): far above any thread or
 #: helical ramp (tens of turns), far below the 16-bit turn count of the move table; more is refused.
 MAX_ARC_TURNS = 10_000
+#: Most repeats of a canned cycle in one block (G-code ``L``): a row of holes, not a loop that never ends.
+MAX_CYCLE_REPEATS = 10_000
 
 #: (first, second, linear) axis index of each plane, as RS-274 orders them: the arc turns in the
 #: (first, second) plane, clockwise seen from the plane's positive normal.

@@ -31,7 +31,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'Reference', 'ReferenceChunk', 'check_limits', 'corner_zones_mm', 'plan_chunks', 'plan_moves', 'plan_program',
         'planned_duration_s'
     ),
-    'plan_base': ('EPS_MM', 'PlanLimits', 'move_directions', 'nominal_speed_mm_s'),
+    'plan_base': ('EPS_MM', 'MAX_RUN_SAMPLES', 'PlanLimits', 'check_run_length', 'move_directions', 'nominal_speed_mm_s'),
     'plan_kernels': ('BLOCK_SAMPLES', 'arc_table', 'group_kernel', 'group_range', 'group_state'),
     'plan_tp': (
         'ACC_RATIO_NORMAL', 'ACC_RATIO_TANGENTIAL', 'BLEND_DIST_FRACTION', 'GAP_CYCLES', 'KINK_RATIO',

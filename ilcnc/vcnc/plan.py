@@ -126,7 +126,7 @@ from ilcnc.program.model import (
     PLANE_AXES,
     MoveTable,
 )
-from ilcnc.vcnc.plan_base import EPS_MM, PlanLimits, move_directions, nominal_speed_mm_s
+from ilcnc.vcnc.plan_base import EPS_MM, PlanLimits, check_run_length, move_directions, nominal_speed_mm_s
 from ilcnc.vcnc.plan_kernels import BLOCK_SAMPLES, arc_table, group_kernel, group_range, group_state
 
 __all__ = [
@@ -445,8 +445,10 @@ def _chunk(moves: MoveTable, first: int, period_s: float, pos: NDArray[np.float6
 
 
 def _profile_moves(program: object, profile: MachineProfile) -> MoveTable:
-    """The program's moves with the profile's ``planner.path_control`` where the program sets none."""
+    """The program's moves with the profile's ``planner.path_control`` where the program sets none (refused
+    first when its motion would take longer than a virtual run may: :func:`check_run_length`)."""
     moves = program.moves  # type: ignore[attr-defined]
+    check_run_length(program, moves, profile)
     default = _PROFILE_PATH_CONTROL.get(profile.planner.path_control)
     if default is not None:
         blend = moves.blend_tol_mm

@@ -15,11 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ilcnc.errors import InputError
 from ilcnc.profile.sections import MachineProfile
-from ilcnc.program.geometry import arc_sweep_rad
+from ilcnc.program.geometry import arc_sweep_rad, move_lengths_mm
 from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
 
-__all__ = ["EPS_MM", "PlanLimits", "move_directions", "nominal_speed_mm_s"]
+__all__ = ["EPS_MM", "MAX_RUN_SAMPLES", "PlanLimits", "check_run_length", "move_directions", "nominal_speed_mm_s"]
 
 #: Lengths below this are zero, mm.
 EPS_MM = 1e-9
@@ -107,3 +108,30 @@ def nominal_speed_mm_s(moves: MoveTable, length: NDArray[np.float64], limits: Pl
     v = np.minimum(feed, cap)
     v = np.where(np.isfinite(v), v, np.nanmin(np.where(np.isfinite(limits.velocity_mm_s), limits.velocity_mm_s, 1e3)))
     return np.maximum(v, 1e-6)
+
+
+#: Most servo periods a virtual-CNC run may take (11.6 days at 1 ms; stellabee1, 169k lines, takes 27 M): a
+#: program beyond it is refused before planning, not planned for days (a coordinate typed 999999999).
+MAX_RUN_SAMPLES = 1e9
+
+
+def check_run_length(program: object, moves: MoveTable, profile: MachineProfile) -> None:
+    """Refuse a program whose motion alone takes more than :data:`MAX_RUN_SAMPLES` servo periods.
+
+    The bound is each move's length over its programmed feed capped by the axes' velocities
+    (:func:`nominal_speed_mm_s`), summed: the planner can only take longer. The error
+    names the longest move's line.
+    """
+    if len(moves) == 0:
+        return
+    length = move_lengths_mm(moves)
+    t = length / nominal_speed_mm_s(moves, length, PlanLimits.from_profile(profile))
+    total_s = float(np.sum(t))
+    period = profile.machine.servo_period_s
+    if not total_s / period > MAX_RUN_SAMPLES:
+        return
+    i = int(np.argmax(t))
+    raise InputError(getattr(program, "path", None), int(moves.line[i]),
+                     f"the program's motion takes at least {total_s / 3600:,.0f} h at the profile's feeds"
+                     f" ({total_s / period:.3g} servo periods, more than the {MAX_RUN_SAMPLES:.0e} a virtual run takes);"
+                     f" the longest move is here: {length[i]:,.0f} mm in {t[i] / 3600:,.1f} h")
