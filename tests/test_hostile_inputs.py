@@ -181,3 +181,20 @@ def test_a_feed_limit_no_machine_has_is_refused_when_the_profile_loads(tmp_path:
     (tmp_path / "slow.yaml").write_text(text)
     line = _one_error(_no_hang(["simulate", str(STAR), "--profile", str(tmp_path / "slow.yaml")]), 1)
     assert line.endswith("max_velocity_mm_min: must be >= 1 and <= 1000000, got 1e-300"), line
+
+
+def test_parts_of_one_name_in_two_dialects_learn_side_by_side(tmp_path: Path) -> None:
+    """Issue 25 item 16: star.h and star.ngc in one folder shared OUT/star.state (one of them failed)."""
+    parts = tmp_path / "parts"
+    parts.mkdir()
+    for name in ("star.h", "star.ngc"):
+        shutil.copy(REPO / "samples" / "own" / name, parts / name)
+    res = runner.invoke(app, ["batch", str(parts), "--out", str(tmp_path / "out"), "--profile", str(MILL),
+                              "--iterations", "1", "--json"])
+    assert res.exit_code == 0, res.output
+    import json
+
+    statuses = [r["status"] for r in json.loads(res.output)["parts"]]
+    assert len(statuses) == 2 and "error" not in statuses, statuses
+    assert sorted(p.name for p in (tmp_path / "out").iterdir() if p.name.endswith(".state")) == [
+        "star.ilc.h.state", "star.ilc.ngc.state"]

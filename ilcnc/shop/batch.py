@@ -81,7 +81,9 @@ _PROGRAM_SUFFIXES = (".nc", ".ngc", ".tap", ".gcode", ".gc", ".cnc", ".h")
 def _job(program: Path, profile: Path, out_dir: Path, iterations: int | None, tag: bool) -> BatchJob:
     stem = program.stem + (f".{profile.stem}" if tag else "")
     out = out_dir / f"{stem}.ilc{program.suffix}"
-    return BatchJob(str(program), str(profile), str(out), str(out_dir / f"{stem}.state"), iterations)
+    # the state is named after the output, as learn's default (OUT.state): part.h and part.nc in one folder
+    # learn into part.ilc.h.state and part.ilc.nc.state (issue 25 item 16: they shared part.state)
+    return BatchJob(str(program), str(profile), str(out), str(out.with_name(out.name + ".state")), iterations)
 
 
 #: Most iterations a manifest may ask for (as ``--iterations``).
