@@ -77,3 +77,25 @@ def test_what_a_killed_run_left_before_its_first_index_is_replaced(tmp_path: Pat
                               str(t), "--iterations", "1"])
     assert res.exit_code == 1 and "is not empty and holds no learning state" in res.output  # type: ignore[attr-defined]
     assert (t / "notes.txt").read_text() == "the operator's notes\n" and (t / "original.ngc").exists()
+
+
+def test_a_corrections_file_changed_by_hand_is_refused(tmp_path: Path) -> None:
+    """Issue 25 item 9: a row of iter-001.corrections.csv changed to 0.4 mm by hand was used silently (and kept
+    at 669 µm max). Every CSV the state relies on is hash-checked now, like its programs."""
+    log = tmp_path / "run0.csv"
+    assert runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--out", str(log)]).exit_code == 0
+    s = tmp_path / "S"
+    res = runner.invoke(app, ["learn", str(STAR), "--profile", str(MILL), "--log", str(log), "--state", str(s),
+                              "--out", str(tmp_path / "star.1.ngc")])
+    assert res.exit_code == 0, res.output  # type: ignore[attr-defined]
+    csv = s / "iter-001.corrections.csv"
+    rows = csv.read_text().splitlines()
+    k, *_ = rows[3].split(",")
+    rows[3] = f"{k},0.400000000,0.000000000,0.000000000"
+    csv.write_text("\n".join(rows) + "\n")
+    res = runner.invoke(app, ["learn", str(tmp_path / "star.1.ngc"), "--profile", str(MILL), "--log", str(log),
+                              "--state", str(s), "--out", str(tmp_path / "star.2.ngc")])
+    assert res.exit_code == 1, res.output  # type: ignore[attr-defined]
+    assert res.output.strip() == (f"error: {csv}: changed since ilcnc wrote it (hash mismatch): the learning state is"  # type: ignore[attr-defined]
+                                  " damaged")
+    assert not (tmp_path / "star.2.ngc").exists()

@@ -120,6 +120,9 @@ class LearnState:
         Current factor on the gains (the guard halves it once).
     status : str
         ``learning``, ``diverged``, ``converged``.
+    file_sha256 : dict
+        SHA-256 of each corrections and errors CSV, by file name: a CSV changed behind ilcnc's back is refused
+        like a changed program (states written before these were recorded have none to check).
     """
 
     directory: Path
@@ -130,6 +133,7 @@ class LearnState:
     iterations: list[IterationEntry] = field(default_factory=list)
     gain_scale: float = 1.0
     status: LearnStatus = LearnStatus.LEARNING
+    file_sha256: dict[str, str] = field(default_factory=dict)
 
     # -- queries -----------------------------------------------------------------------------
 
@@ -195,11 +199,17 @@ class LearnState:
         """Write a CSV of ``rows`` with a header; return its SHA-256."""
         lines = [header]
         lines.extend(fmt % tuple(r) for r in rows.tolist())
-        return self.write_file(name, "\n".join(lines) + "\n")
+        sha = self.write_file(name, "\n".join(lines) + "\n")
+        self.file_sha256[name] = sha
+        return sha
 
     def read_array(self, name: str, ncols: int) -> NDArray[np.float64]:
         p = self.file(name)
-        text = read_bytes(p).decode("utf-8", errors="replace")
+        raw = read_bytes(p)
+        want = self.file_sha256.get(name)
+        if want is not None and sha256_bytes(raw) != want:
+            raise StateError(p, None, "changed since ilcnc wrote it (hash mismatch): the learning state is damaged")
+        text = raw.decode("utf-8", errors="replace")
         try:
             arr = np.loadtxt(text.splitlines()[1:], delimiter=",", ndmin=2)
         except ValueError as exc:
@@ -252,6 +262,7 @@ class LearnState:
             "gain_scale": self.gain_scale,
             "status": self.status,
             "iterations": [asdict(e) for e in self.iterations],
+            "file_sha256": self.file_sha256,
         }
         write_atomic(self.path, json.dumps(data, indent=1, sort_keys=False) + "\n")
 
@@ -287,6 +298,7 @@ class LearnState:
                 iterations=[IterationEntry(**e) for e in data["iterations"]],
                 gain_scale=float(data["gain_scale"]),
                 status=LearnStatus(str(data["status"])),
+                file_sha256={str(k): str(v) for k, v in dict(data.get("file_sha256", {})).items()},
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise StateError(p, None, f"damaged learning state: {exc}") from None
@@ -301,6 +313,10 @@ class LearnState:
             for name in (e.corrections, e.errors):
                 if name is not None and not self.file(name).is_file():
                     raise StateError(self.file(name), None, "missing: the learning state is damaged")
+                want = self.file_sha256.get(name) if name is not None else None
+                if want is not None and sha256_bytes(read_bytes(self.file(name))) != want:
+                    raise StateError(self.file(name), None, "changed since ilcnc wrote it (hash mismatch): the learning"
+                                     " state is damaged")
 
     @classmethod
     def exists(cls, directory: str | Path) -> bool:
