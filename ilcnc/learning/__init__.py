@@ -10,7 +10,7 @@ from ilcnc._lazy import lazy_exports
 _EXPORTS: dict[str, tuple[str, ...]] = {
     'feed': ('FeedLaw', 'feed_cost_s', 'move_errors_mm', 'move_times_s'),
     'gain_schedule': ('DEFAULT_DK', 'ScheduleResult', 'schedule_gains', 'seed001_standin_program'),
-    'guard': ('GROWTH_ABS_MM', 'GROWTH_REL', 'LearningGuard', 'best_stats', 'grew'),
+    'guard': ('GROWTH_ABS_MM', 'GROWTH_REL', 'GROWTH_RESOLUTION_SHARE', 'LearningGuard', 'best_stats', 'grew'),
     'identification': (
         'GAIN_TOLERANCE', 'Identification', 'MODELS', 'MODEL_ALIASES', 'PARAMETERS', 'PROFILE_MODEL', 'SIGNALS',
         'UNITS'

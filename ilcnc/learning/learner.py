@@ -928,8 +928,10 @@ def learn_virtual(
             feed_step, guard_.halved = False, False
             continue
         if stop_on_stall and prev_rms - stats.rms_mm < STALL_REL * prev_rms:
-            stall_msg = (f"iteration {rec.iteration} improved the RMS contour error by less than {STALL_REL:.0%} "
-                         f"({prev_rms * 1e3:.3f} → {stats.rms_mm * 1e3:.3f} µm)")
+            # the message says what happened: a kept iteration may also be a hair worse (within the guard's tolerance)
+            how = (f"improved the RMS contour error by less than {STALL_REL:.0%}" if stats.rms_mm < prev_rms
+                   else "did not improve the RMS contour error")
+            stall_msg = f"iteration {rec.iteration} {how} ({prev_rms * 1e3:.3f} → {stats.rms_mm * 1e3:.3f} µm)"
             if not feed_done:
                 feed_step = True
                 continue
