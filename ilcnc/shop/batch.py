@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import reprlib
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -91,8 +92,11 @@ MAX_ITERATIONS = 1000
 
 
 def _short(value: object, limit: int = 60) -> str:
-    """``repr(value)``, cut to ``limit`` characters (a message names a value, it does not print a file)."""
-    r = repr(value)
+    """``repr(value)``, cut to ``limit`` characters (a message names a value, it does not print a file). The repr
+    itself is bounded (``reprlib``): a YAML alias bomb nests lists a billion elements deep in a few lines."""
+    rp = reprlib.Repr()
+    rp.maxlevel, rp.maxlist, rp.maxdict, rp.maxstring, rp.maxother = 3, 6, 6, limit, limit
+    r = rp.repr(value)
     return r if len(r) <= limit else r[: limit - 5] + " ...)"
 
 
