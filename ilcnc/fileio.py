@@ -27,12 +27,14 @@ def read_bytes(path: str | Path) -> bytes:
 
 
 def same_file(a: str | Path, b: str | Path) -> bool:
-    """True when both paths name the same existing file (or the same path)."""
+    """True when both paths name the same existing file, or the same path (resolved) when one does not exist."""
     pa, pb = Path(a), Path(b)
     try:
-        return pa.exists() and pb.exists() and os.path.samefile(pa, pb)
+        if pa.exists() and pb.exists():
+            return os.path.samefile(pa, pb)
     except OSError:
-        return pa.resolve() == pb.resolve()
+        pass
+    return pa.resolve() == pb.resolve()
 
 
 _UMASK_LOCK = threading.Lock()
@@ -77,7 +79,7 @@ def write_atomic(path: str | Path, data: bytes | str, *, protect: tuple[str | Pa
     """
     dest = Path(path)
     for src in protect:
-        if same_file(dest, src) or Path(src).resolve() == dest.resolve():
+        if same_file(dest, src):
             raise InputError(dest, None, "refusing to write over an input file; choose another output path")
     if isinstance(data, str):
         data = data.encode("utf-8")

@@ -328,7 +328,7 @@ class Identification:
         dest = Path(path)
         inputs = tuple(protect) + ((self.source,) if self.source else ())
         for src in inputs:  # before drawing: the same refusal write_atomic makes
-            if same_file(dest, src) or Path(src).resolve() == dest.resolve():
+            if same_file(dest, src):
                 raise InputError(dest, None, "refusing to write over an input file; choose another output path")
         fmt = dest.suffix.lstrip(".").lower() or "png"
         if fmt not in ("png", "svg", "pdf", "jpg", "jpeg", "webp", "eps", "ps", "tif", "tiff"):

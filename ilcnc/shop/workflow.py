@@ -353,9 +353,8 @@ def _virtual(req: LearnRequest, profile: MachineProfile, profile_sha: str, data:
 def _replacing(state_dir: Path, req: LearnRequest, data: bytes) -> Iterator[None]:
     """``--force``: set the earlier run's state aside, drop it once the new run is written, restore it on failure
     (``data``: the bytes of ``req.program``)."""
-    root = state_dir.resolve()
     for p in (req.program, req.profile):
-        if root == p.resolve() or root in p.resolve().parents:
+        if _inside(p, state_dir):
             raise StateError(p, None, f"is inside the state {state_dir} that --force would replace: copy it out first")
     try:
         earlier = LearnState.load(state_dir)
@@ -781,7 +780,7 @@ def _check_output_paths(req: LearnRequest) -> None:
     inputs = [("the program", req.program), ("the profile", req.profile)]
     inputs += [(what, p) for what, p in (("the log", req.log), ("the points", req.points)) if p is not None]
     for what, p in inputs:
-        if same_file(req.out, p) or req.out.resolve() == p.resolve():
+        if same_file(req.out, p):
             raise InputError(req.out, None, f"is {what} of this run: choose another output path (--out)")
     if req.state is not None and _inside(req.out, req.state):
         raise InputError(req.out, None, f"is inside the learning state {req.state}, which ilcnc keeps intact: choose"
