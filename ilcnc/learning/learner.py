@@ -50,7 +50,7 @@ from ilcnc.contour.air import (
 from ilcnc.contour.figures import ErrorFigures
 from ilcnc.errors import UnsupportedError
 from ilcnc.learning.feed import FeedLaw, FeedOutcome, move_errors_mm, move_times_s
-from ilcnc.learning.guard import LearningGuard, best_stats
+from ilcnc.learning.guard import LearningGuard
 from ilcnc.learning.laws import AXES, LearningLaw, cut_runs, make_law
 from ilcnc.outcomes import GuardVerdict, LearnStatus, ModelStepEnd
 from ilcnc.profile.sections import MachineProfile
@@ -879,9 +879,10 @@ def learn_virtual(
         tim["write"] = t_write
         stats = sim.stats
         cycle = float(sim.cycle_time_s)
-        kept_stats = [r.stats for r in records if r.kept]
-        ref_stats = best_stats(kept_stats)
-        worse = guard_.compare(stats, kept_stats)[0] if guard else []
+        worse, ref_stats = guard_.compare(stats, [r.stats for r in records if r.kept])
+        assert ref_stats is not None  # iteration 0 is always kept
+        if not guard:  # an unguarded run keeps every iteration; the reference still names what grew
+            worse = []
         if feed_step:
             assert feed_law is not None and f_new is not None and f_best is not None
             feed_law.measured(f_new, cycle, cycle_best, f_best)
