@@ -23,7 +23,6 @@ __all__ = ["LOG_FORMATS", "detect_log_format", "read_log"]
 
 #: Values of the ``fmt`` argument of :func:`read_log`.
 LOG_FORMATS: tuple[str, ...] = ("auto", "ilcnc", "halsampler", "tncscope")
-_LOG_UNITS = LENGTH_UNITS
 
 
 def _head_lines(p: Path, size: int = 65536) -> list[str]:
@@ -130,8 +129,8 @@ def read_log(
     """
     if fmt not in LOG_FORMATS:
         raise ValueError(f"unknown log format {fmt!r} (known: {', '.join(LOG_FORMATS)})")
-    if units not in _LOG_UNITS:
-        raise ValueError(f"unknown log units {units!r} (known: {', '.join(_LOG_UNITS)})")
+    if units not in LENGTH_UNITS:
+        raise ValueError(f"unknown log units {units!r} (known: {', '.join(LENGTH_UNITS)})")
     p = Path(path)
     log = _read_any_log(p, fmt, period_s, columns, units)
     if offset is not None:

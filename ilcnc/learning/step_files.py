@@ -21,7 +21,7 @@ from ilcnc.learning.identification import MODEL_ALIASES, Identification
 from ilcnc.learning.identify import identify_step
 from ilcnc.profile.load import load_profile
 from ilcnc.profile.sections import MachineProfile
-from ilcnc.units import AXIS_NAMES
+from ilcnc.units import AXIS_NAMES, LENGTH_UNITS
 
 __all__ = ["identify_file", "read_step_csv"]
 
@@ -183,7 +183,7 @@ def identify_file(
         prof = profile
     else:
         prof = load_profile(profile)
-    if units not in ("mm", "inch"):
+    if units not in LENGTH_UNITS:
         raise ValueError(f"unknown units {units!r} (known: mm, inch)")
     if fmt not in ("auto", "step", "ilcnc", "halsampler", "tncscope"):
         raise ValueError(f"unknown format {fmt!r} (known: auto, step, ilcnc, halsampler, tncscope)")

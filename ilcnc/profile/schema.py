@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from ilcnc.units import AXIS_NAMES, MM_PER_INCH
+from ilcnc.units import AXIS_NAMES, LENGTH_UNITS, MM_PER_INCH
 
 __all__ = [
     "AXIS_NAMES",
@@ -221,7 +221,7 @@ SPECS: tuple[Spec, ...] = (
     _c(
         "machine.units",
         "Program units assumed when a program has no G20/G21 (Heidenhain programs always say MM or INCH).",
-        ("mm", "inch"),
+        LENGTH_UNITS,
         default="mm",
     ),
     _f(

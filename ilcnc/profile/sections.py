@@ -22,7 +22,7 @@ import yaml
 
 from ilcnc.errors import InputError
 from ilcnc.profile.schema import DRIVE_KEY, default_of
-from ilcnc.units import MM_PER_INCH
+from ilcnc.units import LENGTH_UNITS, MM_PER_INCH
 
 __all__ = [
     "DRIVE_MODELS",
@@ -773,7 +773,7 @@ class MachineProfile:
             ``output.decimals`` when given, else the decimals needed to express
             ``resolution_mm`` in the program's units (inch: resolution/25.4).
         """
-        if units not in ("mm", "inch"):
+        if units not in LENGTH_UNITS:
             raise ValueError(f"units must be 'mm' or 'inch', got {units!r}")
         if self.output.decimals is not None:
             return self.output.decimals

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from ilcnc.program.model import FLAG_MACHINE, MOVE_ARC_CCW, MOVE_LINE, MOVE_RAPID, PLANE_AXES, PLANE_XY, MoveTable, named_axes
-from ilcnc.units import AXIS_LETTERS, MM_PER_INCH
+from ilcnc.units import AXIS_LETTERS, LENGTH_UNITS, MM_PER_INCH
 
 __all__ = ["write_klartext"]
 
@@ -169,7 +169,7 @@ def write_klartext(moves: MoveTable, *, name: str, units: str = "mm", decimals: 
     ValueError
         Unknown units or decimals out of range.
     """
-    if units not in ("mm", "inch"):
+    if units not in LENGTH_UNITS:
         raise ValueError(f"units must be 'mm' or 'inch', not {units!r}")
     if not 0 <= int(decimals) <= 6:
         raise ValueError(f"decimals must be 0..6, not {decimals}")
