@@ -18,6 +18,10 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'run_lock', 'run_program'
     ),
     'linuxcnc_config': ('ini_in', 'read_ini', 'read_ini_text', 'scale_program_time', 'scaled_ini_text'),
+    'log_identity': (
+        'LogIdentity', 'MIN_ON_PATH_SHARE', 'check_log_identity', 'check_log_order', 'log_quantum_mm',
+        'samples_fingerprint'
+    ),
     'measure': ('Measurement', 'interpolate_along_path', 'measure_log', 'measure_points'),
     'report': ('CommandDiff', 'MAX_PLOT_POINTS', 'REPORT_FILES', 'ReportRun', 'is_report_file', 'write_report'),
     'state': ('IterationEntry', 'LearnState', 'STATE_FILE', 'sha256_bytes', 'sha256_file', 'state_lock'),

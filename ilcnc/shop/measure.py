@@ -7,12 +7,15 @@ is made from it, the measurement must be shown to belong to the program it
 claims: its block lines must be lines of that program, its positions must
 follow the program's path (a log in the wrong unit or of another part does
 not), its duration must match the program's planned cycle time, and it must
-cover most of the program's commands. Each refusal is one line naming the
-file and the problem.
+cover most of the program's commands. :mod:`ilcnc.shop.log_identity` then
+shows it is one whole run of that very program (block numbers, first to last
+once, columns the right way round, commanded positions on its path, not an
+earlier iteration's). Each refusal is one line naming the file and the problem.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +31,7 @@ from ilcnc.contour.figures import ErrorFigures
 from ilcnc.errors import LogError
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import FLAG_CUTTER_COMP, MOVE_RAPID, Program
+from ilcnc.shop.log_identity import LogIdentity, check_log_identity, check_log_order
 from ilcnc.units import MM_PER_INCH
 from ilcnc.vcnc.command_error import CommandSignal, command_signal_from_run, measurement_gate_mm, reference_command_samples
 
@@ -76,6 +80,7 @@ class Measurement:
     air_stats: ErrorFigures | None = None
     seg: NDArray[np.int64] | None = None  # move of each sample's foot point (-1: none)
     u: NDArray[np.float64] | None = None  # its path parameter (move + fraction)
+    identity: LogIdentity | None = None  # what the log's identity checks measured (ilcnc.shop.log_identity)
 
 
 def _stats(d: NDArray[np.float64]) -> ErrorFigures:
@@ -84,6 +89,16 @@ def _stats(d: NDArray[np.float64]) -> ErrorFigures:
 
 def sample_moves(log: AxisLog, ran: Program) -> NDArray[np.int64]:
     """Move of the running block at each sample (-1 before the first), from the log's k or line columns."""
+    mv = numbered_moves(log, ran)
+    # forward fill samples with no block (the settle tail, a line without motion)
+    idx = np.where(mv >= 0, np.arange(mv.size), -1)
+    np.maximum.accumulate(idx, out=idx)
+    filled = np.where(idx >= 0, mv[np.maximum(idx, 0)], -1)
+    return filled
+
+
+def numbered_moves(log: AxisLog, ran: Program) -> NDArray[np.int64]:
+    """Move of the block each sample names by its k or line column (-1 where it names none)."""
     mv = np.full(log.n_samples, -1, np.int64)
     k = np.asarray(log.k, dtype=np.int64)
     cm = ran.command_moves
@@ -94,11 +109,7 @@ def sample_moves(log: AxisLog, ran: Program) -> NDArray[np.int64]:
     if need.any():
         by_line = moves_from_lines(np.asarray(log.line, dtype=np.int64), ran)
         mv[need] = by_line[need]
-    # forward fill samples with no block (the settle tail, a line without motion)
-    idx = np.where(mv >= 0, np.arange(mv.size), -1)
-    np.maximum.accumulate(idx, out=idx)
-    filled = np.where(idx >= 0, mv[np.maximum(idx, 0)], -1)
-    return filled
+    return mv
 
 
 def measure_log(
@@ -110,6 +121,7 @@ def measure_log(
     *,
     source: str | Path,
     units: str = "mm",
+    earlier: Sequence[tuple[str, Program]] = (),
 ) -> Measurement:
     """Check that a log is a run of ``ran`` and measure ``E(k)`` on it against the original drawing.
 
@@ -129,6 +141,9 @@ def measure_log(
         The log file (for messages).
     units : {"mm", "inch"}
         The unit the user said the log is in (for the unit hint).
+    earlier : sequence of (str, Program)
+        Programs that ran before ``ran`` (what to call each, the program): the log must not fit one of them
+        better (:func:`ilcnc.shop.log_identity.check_log_identity`).
 
     Raises
     ------
@@ -138,7 +153,7 @@ def measure_log(
     original.require_modelled()
     ran.require_modelled()
     from ilcnc.contour.path import PathGeometry
-    from ilcnc.contour.search import contour_error, guess_hints
+    from ilcnc.contour.search import contour_error
     from ilcnc.vcnc.plan import plan_program
 
     src = Path(source)
@@ -166,17 +181,16 @@ def measure_log(
             bad = int(line[np.flatnonzero(foreign)[0]])
             raise LogError(src, None, f"{share:.0%} of the log's samples run lines that hold no move of {ran.path.name}"
                            f" (e.g. line {bad}): it is a log of another program")
+    t_s = np.asarray(log.t_s, dtype=np.float64)
+    numbered = numbered_moves(log, ran)
+    if not (numbered >= 0).any():
+        check_log_order(numbered, ran, src, t_s)  # refuses a log without block numbers
     mv = sample_moves(log, ran)
     # the path with its rapids: a feed sample still on the line of the rapid before it (LinuxCNC starts a
     # plunge while the axes lag behind the rapid) is in the air, not off the cut (simulate does the same)
     path = PathGeometry.from_moves(original.moves, include_rapids=True)
-    if (mv >= 0).any():
-        hint = np.where(mv >= 0, mv, int(mv[mv >= 0][0]))
-        mv_or_first = hint
-    else:
-        hint = guess_hints(PathGeometry.from_moves(original.moves), act)
-        mv_or_first = np.maximum.accumulate(hint)
-        mv = mv_or_first
+    hint = np.where(mv >= 0, mv, int(mv[mv >= 0][0]))
+    mv_or_first = hint
     # the search reaches as far along the path as the machine lags behind its commanded position (as the
     # virtual CNC's does): without it, a sample lagging behind a sharp corner can be matched to the wrong side
     # of the corner (issue 25). The commanded position may leave its move by the blend (the profile's corner
@@ -205,7 +219,11 @@ def measure_log(
                        f" the path of {original.path.name} (first at t = {log.t_s[i]:.3f} s): it is not a run of this"
                        " program, or not in the same coordinates (a log of machine coordinates needs the work offset:"
                        " --log-offset)")
+    check_log_order(numbered, ran, src, t_s)
     ref = plan_program(ran, profile)
+    identity = check_log_identity(ref_log, act, t_s, ran, act_seg=err.seg, act_frac=err.u - err.seg, drawing=path,
+                                  sample_move=mv_or_first, feed=feed, planned_mm=ref.pos_mm, planned_move=ref.move,
+                                  resolution_mm=profile.machine.resolution_mm, source=src, earlier=earlier)
     span = float(log.t_s[-1] - log.t_s[0])
     lo, hi = DURATION_RATIO
     if ref.duration_s > 0 and not lo <= span / ref.duration_s <= hi:
@@ -239,7 +257,7 @@ def measure_log(
     return Measurement(kind="log", signal=sig, stats=_stats(np.where(air, np.nan, d)), actual_mm=act,
                        contour_mm=err.dist_mm, signed_mm=err.signed_mm, foot_mm=err.foot_mm,
                        path_pos_mm=path_position_mm(err), feed_mask=feed, notes=notes,
-                       air_stats=_stats(np.where(air, d, np.nan)), seg=err.seg, u=err.u)
+                       air_stats=_stats(np.where(air, d, np.nan)), seg=err.seg, u=err.u, identity=identity)
 
 
 def path_position_mm(err: Any) -> NDArray[np.float64]:

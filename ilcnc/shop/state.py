@@ -163,10 +163,11 @@ class LearnState:
                 return e
         return None
 
-    def used_measurement(self, sha: str) -> IterationEntry | None:
-        """The iteration measured from a file with this hash, if any."""
+    def used_measurement(self, sha: str, *, samples_sha: str | None = None) -> IterationEntry | None:
+        """The iteration measured from a file with this hash, or from a log with these samples, if any."""
         for e in self.iterations:
-            if e.measured_from and e.measured_from.get("sha256") == sha:
+            m = e.measured_from
+            if m and (m.get("sha256") == sha or (samples_sha is not None and m.get("samples_sha256") == samples_sha)):
                 return e
         return None
 

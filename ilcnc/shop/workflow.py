@@ -575,6 +575,7 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
                    relation: str, entry_of_prog: IterationEntry | None, made: list[Path]) -> LearnOutcome:
     from ilcnc.axislog.detect import read_log
     from ilcnc.axislog.points import read_points
+    from ilcnc.shop.log_identity import samples_fingerprint
     from ilcnc.shop.measure import measure_log, measure_points
 
     if req.state is None:
@@ -631,12 +632,25 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
                          f" for a measurement of iteration {entry.iteration} ({entry.program}): run that one")
     ran = read_program(state.file(entry.program), default_units=profile.machine.units, data=state.read_program_bytes(entry))
     kind = state.error
+    log_fp: str | None = None  # the log's samples' fingerprint (a log used once is known again in other text)
     if req.log is not None:
         period = req.log_period_s if req.log_period_s is not None else profile.machine.servo_period_s
         log = refined_log if refined_log is not None else read_log(
             req.log, fmt=req.log_format, period_s=period, units=req.log_units, columns=req.log_columns,
             offset=req.log_offset)
-        meas = measure_log(log, ran, original, profile, kind, source=req.log, units=req.log_units)
+        log_fp = samples_fingerprint(log) if refined_log is None else None
+        again = state.used_measurement(src_sha, samples_sha=log_fp)
+        if again is not None and again.measured_from:  # the same samples in other text (a comment, other numbers)
+            raise LogError(source, None, f"this log holds the samples of the log of iteration {again.iteration}"
+                           f" ({Path(str(again.measured_from.get('path'))).name}), only written differently: record a"
+                           " new run of the latest program")
+        # the programs a log of the wrong run would most likely be of: the original and the last three before
+        earlier_runs = [e for e in state.iterations if e is not entry and e.program_sha256 != entry.program_sha256]
+        earlier = [(f"the program of iteration {e.iteration} ({e.program})",
+                    read_program(state.file(e.program), default_units=profile.machine.units,
+                                 data=state.read_program_bytes(e)))
+                   for e in earlier_runs if e.iteration == 0 or e in earlier_runs[-3:]]
+        meas = measure_log(log, ran, original, profile, kind, source=req.log, units=req.log_units, earlier=earlier)
     else:
         assert req.points is not None
         meas = measure_points(read_points(req.points), original, profile, source=req.points,
@@ -645,6 +659,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     entry.errors = state.write_errors(entry.iteration, meas.signal.e_mm, meas.signal.t_s, meas.signal.valid)
     entry.stats = meas.stats.to_json()
     entry.measured_from = {"kind": meas.kind, "path": str(source), "sha256": src_sha}
+    if log_fp is not None:
+        entry.measured_from["samples_sha256"] = log_fp
     if meas.air_stats is not None:
         entry.measured_from["air_error_mm"] = meas.air_stats.to_json()
     best = state.best()
