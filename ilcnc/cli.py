@@ -302,6 +302,8 @@ def _simulate(prog, prof, orig, samples: bool, progress=None):
 
 def _simulate_with_progress(prog, prof, orig, console, samples: bool):
     """Run the virtual CNC with a progress bar over its stages (shown on a terminal only)."""
+    if not console.is_terminal:  # a live display off a terminal leaves a blank line before any error or table
+        return _simulate(prog, prof, orig, samples)
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     stages = ("plan", "drives", "errors", "contour")
@@ -384,6 +386,10 @@ def learn(
         bool, typer.Option("--relearn", help="Start a new run on a program that is an output of an earlier run"
                            " (refused by default: its corrections would be corrected again).")
     ] = False,
+    new_profile: Annotated[
+        bool, typer.Option("--new-profile", help="Continue a --state run with another profile than it was made with:"
+                           " a new branch from its best iteration (refused by default; docs/learning.md).")
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Learn corrections of the G01 end points and write the compensated program.
@@ -403,7 +409,8 @@ def learn(
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
                        log_period_s=log_period, points_reach_mm=points_reach, log_columns=log_columns,
                        log_offset=_parse_offset(log_offset), force=force,
-                       cutting_below_z_mm=cutting_below_z, refine=refine, relearn=relearn)
+                       cutting_below_z_mm=cutting_below_z, refine=refine, relearn=relearn,
+                       new_profile=new_profile)
     console = _console()
     try:
         if as_json or log is not None or points is not None:
@@ -420,6 +427,8 @@ def learn(
 
 def _learn_with_progress(learn_part, req, console):
     """Virtual learning with a progress bar over the iterations (shown on a terminal only)."""
+    if not console.is_terminal:  # a live display off a terminal leaves a blank line before any error or table
+        return learn_part(req)
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     with Progress(TextColumn("learning: {task.description:<22}"), BarColumn(), TimeElapsedColumn(),
@@ -655,6 +664,10 @@ def batch(
         str | None, typer.Option("--scheduler", help="Dask distributed scheduler address (tcp://host:8786).")
     ] = None,
     iterations: Annotated[int | None, typer.Option("--iterations", min=1, max=1000, help="Largest number of iterations.")] = None,
+    allow_outside: Annotated[
+        bool, typer.Option("--allow-outside", help="Learn manifest programs outside the manifest's folder (refused"
+                           " by default).")
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Learn every part of a folder or manifest; exit 1 if any part failed or regressed."""
@@ -666,8 +679,8 @@ def batch(
             raise InputError(profile, None, "file not found" if not profile.exists() else "is not a file")
         if out.exists() and not out.is_dir():
             raise InputError(out, None, "exists and is not a folder")
-        out.mkdir(parents=True, exist_ok=True)
-        jobs = batch_mod.jobs_from_path(source, profile, out, iterations=iterations)
+        jobs = batch_mod.jobs_from_path(source, profile, out, iterations=iterations, allow_outside=allow_outside)
+        out.mkdir(parents=True, exist_ok=True)  # after the jobs are checked: a refused manifest makes nothing
     except IlcncError as exc:
         _fail(exc)
     console = _console()

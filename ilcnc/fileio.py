@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import os
+import re
 import stat
 import tempfile
 import threading
 from pathlib import Path
+from typing import BinaryIO
 
 from ilcnc.errors import InputError
 
@@ -18,6 +20,22 @@ def read_bytes(path: str | Path) -> bytes:
         if p.exists() and not p.is_dir() and not p.is_file():  # a FIFO or a device would block or never end
             raise InputError(p, None, "is not a regular file (a pipe or a device): give a file")
         return p.read_bytes()
+    except FileNotFoundError:
+        raise InputError(p, None, "file not found") from None
+    except IsADirectoryError:
+        raise InputError(p, None, "is a directory, expected a file") from None
+    except OSError as exc:
+        raise InputError(p, None, f"cannot read: {exc.strerror}") from None
+
+
+def open_input(path: str | Path) -> BinaryIO:
+    """Open an input file for reading in binary, with :func:`read_bytes`'s checks and one-line errors (to read a
+    large file line by line instead of whole)."""
+    p = Path(path)
+    try:
+        if p.exists() and not p.is_dir() and not p.is_file():
+            raise InputError(p, None, "is not a regular file (a pipe or a device): give a file")
+        return p.open("rb")
     except FileNotFoundError:
         raise InputError(p, None, "file not found") from None
     except IsADirectoryError:
@@ -87,7 +105,8 @@ def write_atomic(path: str | Path, data: bytes | str, *, protect: tuple[str | Pa
     if not parent.is_dir():
         raise InputError(dest, None, f"output directory {parent} does not exist")
     mode = output_mode(dest)
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=parent)
+    remove_stale_temporaries(parent, dest.name)
+    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.{os.getpid()}.", suffix=".tmp", dir=parent)
     try:
         os.fchmod(fd, mode)
         with os.fdopen(fd, "wb") as fh:
@@ -102,3 +121,42 @@ def write_atomic(path: str | Path, data: bytes | str, *, protect: tuple[str | Pa
             pass
         raise
     return dest
+
+
+#: A temporary file of :func:`write_atomic`: ``.NAME.PID.RANDOM.tmp`` (``mkstemp``'s random part has no dot).
+_TEMP_RE = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp$")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's live process
+    return True
+
+
+def remove_stale_temporaries(directory: str | Path, name: str | None = None) -> list[Path]:
+    """Remove what :func:`write_atomic` left behind when its process was killed: ``.NAME.PID.*.tmp`` files of
+    ``directory`` (of the file ``name`` only, if given) whose process no longer runs. Returns the files removed.
+
+    A live writer's temporary file (its process still runs) is left alone; files named otherwise are never
+    touched.
+    """
+    d = Path(directory) if str(directory) else Path(".")
+    removed: list[Path] = []
+    try:
+        entries = list(d.iterdir())
+    except OSError:
+        return removed
+    for p in entries:
+        m = _TEMP_RE.match(p.name)
+        if m is None or (name is not None and m["name"] != name) or _pid_alive(int(m["pid"])):
+            continue
+        try:
+            p.unlink()
+            removed.append(p)
+        except OSError:
+            pass
+    return removed

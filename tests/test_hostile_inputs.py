@@ -227,3 +227,22 @@ def test_a_yaml_alias_bomb_in_a_manifest_is_one_line_in_bounded_memory(tmp_path:
     lines = cp.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {tmp_path / 'm.yaml'}: profiles: must be a profile file"), lines
     assert len(lines[0]) < 250
+
+
+@pytest.mark.parametrize("program", ["../star.ngc", "/etc/passwd", "sub/../../star.ngc"])
+def test_a_manifest_program_outside_its_folder_is_refused_unless_allowed(tmp_path: Path, program: str) -> None:
+    # item 15: a manifest mailed in names files of this machine (/etc/passwd went into the error message)
+    shutil.copy(STAR, tmp_path / "star.ngc")
+    m = tmp_path / "m"
+    m.mkdir()
+    (m / "sub").mkdir()
+    man = m / "parts.yaml"
+    man.write_text(f"profiles: [{MILL}]\nparts:\n  - program: {program}\n")
+    line = _one_error(runner.invoke(app, ["batch", str(man), "--out", str(tmp_path / "out")]), 1)
+    assert line.startswith(f"error: {man}: part 1: program '{program}' is outside the manifest's folder"), line
+    assert line.endswith(": move it there, or give --allow-outside"), line
+    assert not (tmp_path / "out").exists()
+    if program != "/etc/passwd":
+        res = runner.invoke(app, ["batch", str(man), "--out", str(tmp_path / "out"), "--allow-outside", "--iterations",
+                                  "1", "--json"])
+        assert res.exit_code == 0, res.output

@@ -75,10 +75,16 @@ def test_virtual_learn_writes_output_state_and_json(tmp_path) -> None:
     # the same command again does not silently continue or overwrite the run
     code, msg = _run("learn", JSDC, "--profile", SEED004, "--out", out)
     assert code == 1 and "already holds a learning run" in _error_line(msg)
-    # told to continue, it goes on from the best iteration
+    # told to continue, it goes on from the best iteration: measured again as a new iteration after the last
+    # (issue 25 item 8: no record is written twice)
     data2 = _json("learn", JSDC, "--profile", SEED004, "--out", tmp_path / "more.gcode", "--iterations", "1",
                   "--state", tmp_path / "jsdc.ilc.gcode.state")
-    assert data2["iterations"][0]["iteration"] == best.iteration
+    assert data2["iterations"][0]["iteration"] == 3
+    st2 = LearnState.load(tmp_path / "jsdc.ilc.gcode.state")
+    rerun = next(e for e in st2.iterations if e.iteration == 3)
+    assert rerun.measured_from is not None and rerun.measured_from["rerun_of"] == best.iteration
+    assert st2.file(rerun.program).read_bytes() == st.file(best.program).read_bytes()
+    assert [e.stats for e in st2.iterations[:3]] == [e.stats for e in st.iterations]
 
 
 def test_force_replaces_an_earlier_run_but_never_an_input(tmp_path) -> None:
@@ -242,8 +248,11 @@ def test_stamp_and_correcting_twice(tmp_path) -> None:
     # the stamped output with the state of its own run continues that run
     data = _json("learn", out, "--profile", SEED004, "--out", tmp_path / "cont.gcode", "--iterations", "1",
                  "--state", tmp_path / "jsdc.ilc.gcode.state")
-    assert data["iterations"][0]["iteration"] == 1
+    # from its best iteration (1), measured again as iteration 2 (issue 25 item 8: no record is written twice)
+    assert data["iterations"][0]["iteration"] == 2
     assert unstamp_text(text).encode("latin-1") == (tmp_path / "jsdc.ilc.gcode.state" / "iter-001.gcode").read_bytes()
+    assert (tmp_path / "jsdc.ilc.gcode.state" / "iter-002.gcode").read_bytes() == \
+        (tmp_path / "jsdc.ilc.gcode.state" / "iter-001.gcode").read_bytes()
     # an output recognised by its hash alone (no stamp), given with another part's state
     _json("learn", COMPASS, "--profile", SEED004, "--out", tmp_path / "compass.ilc.ngc", "--iterations", "1")
     code, msg = _run("learn", out, "--profile", SEED004, "--out", tmp_path / "x.gcode", "--state",

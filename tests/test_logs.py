@@ -316,3 +316,34 @@ def test_read_log_refuses_bad_options(tmp_path: Path) -> None:
     (tmp_path / "empty.csv").write_text("\n\n")
     with pytest.raises(InputError, match="empty log file"):
         read_log(tmp_path / "empty.csv")
+
+
+def test_an_axis_log_is_read_block_by_block_alike(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # issue 25 item 13: a 10 M-row log held its whole text, its lines and their join at once (a MemoryError under
+    # 4 GB); rows are now parsed in blocks. Blocks of 7 rows read the same samples as one block, and errors keep
+    # their file line across block boundaries.
+    import ilcnc.axislog.log as log_mod
+
+    n = 50
+    t = np.arange(n) * 1e-3
+    ref = np.column_stack([np.linspace(0, 5, n), np.zeros(n), np.zeros(n)])
+    log = AxisLog(t, np.zeros(n, np.int64), np.full(n, 3, np.int64), ref, ref - 0.001)
+    p = tmp_path / "a.csv"
+    p.write_text("# two\n# comment lines\n" + format_axis_log(log) + "\n\n")
+    whole = read_axis_log(p)
+    monkeypatch.setattr(log_mod, "ROWS_PER_BLOCK", 7)
+    small = read_axis_log(p)
+    for a, b in ((whole.t_s, small.t_s), (whole.ref_mm, small.ref_mm), (whole.act_mm, small.act_mm)):
+        assert np.array_equal(a, b)
+    lines = p.read_text().splitlines()
+    bad = lines.copy()
+    bad[30] = bad[30].replace(",", ",x", 1)  # file line 31, in the fifth block of 7
+    p.write_text("\n".join(bad) + "\n")
+    with pytest.raises(InputError) as ei:
+        read_axis_log(p)
+    assert ei.value.line == 31 and "is not a number" in ei.value.problem
+    gap = [*lines[:20], "", *lines[20:]]  # an empty line at file line 21, samples after it
+    p.write_text("\n".join(gap) + "\n")
+    with pytest.raises(InputError) as ei:
+        read_axis_log(p)
+    assert ei.value.line == 21 and ei.value.problem == "empty line in the axis log"

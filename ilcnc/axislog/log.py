@@ -14,15 +14,17 @@ tells them apart. Exported text is decoded by :func:`decode_text`.
 from __future__ import annotations
 
 import io
+import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.errors import InputError
-from ilcnc.fileio import read_bytes, write_atomic
+from ilcnc.fileio import open_input, write_atomic
 
 __all__ = [
     "AXIS_LOG_HEADER", "AxisLog", "check_sample_times", "decode_text", "format_axis_log", "norm_unit",
@@ -118,33 +120,29 @@ def read_axis_log(path: str | Path, *, max_gap_periods: float = 1.5) -> AxisLog:
         Line numbers count every line of the file, comments included.
     """
     p = Path(path)
-    text = read_bytes(p).decode("utf-8", errors="replace").lstrip("\ufeff")
-    lines = text.splitlines()
-    h = 0  # index of the header line
-    while h < len(lines) and (not lines[h].strip() or lines[h].lstrip().startswith("#")):
-        h += 1
-    if h >= len(lines):
-        raise InputError(p, None, "empty axis log")
-    header = [c.strip().lower() for c in lines[h].split(",")]
-    need = ("t_s", "k", "line", "x_ref", "y_ref", "x_act", "y_act")
-    missing = [c for c in need if c not in header]
-    if missing:
-        raise InputError(p, h + 1, f"axis log header lacks {', '.join(missing)} (expected {','.join(AXIS_LOG_HEADER)})")
-    col = {name: i for i, name in enumerate(header)}
-    want = [c for c in AXIS_LOG_HEADER if c in col]
-    body = lines[h + 1:]
-    while body and not body[-1].strip():  # blank lines after the last sample (an editor's, a copy's) end nothing
-        body.pop()
-    first = h + 2  # file line number of body[0]
-    if not body:
-        raise InputError(p, None, "axis log has a header but no samples")
-    try:
-        arr = np.loadtxt(io.StringIO("\n".join(body)), delimiter=",", usecols=[col[c] for c in want], ndmin=2)
-    except ValueError:
-        arr = None
-    if arr is None or arr.shape[0] != len(body):
-        _find_bad_row(p, body, [col[c] for c in want], len(header), first)
-        raise InputError(p, None, "axis log could not be read")  # pragma: no cover
+    with open_input(p) as fh:
+        # comments and blank lines, then the header
+        h = 0  # file line number of the header
+        header_text = None
+        for raw in fh:
+            h += 1
+            line = raw.decode("utf-8", errors="replace")
+            if h == 1:
+                line = line.lstrip("\ufeff")
+            if line.strip() and not line.lstrip().startswith("#"):
+                header_text = line
+                break
+        if header_text is None:
+            raise InputError(p, None, "empty axis log")
+        header = [c.strip().lower() for c in header_text.split(",")]
+        need = ("t_s", "k", "line", "x_ref", "y_ref", "x_act", "y_act")
+        missing = [c for c in need if c not in header]
+        if missing:
+            raise InputError(p, h, f"axis log header lacks {', '.join(missing)} (expected {','.join(AXIS_LOG_HEADER)})")
+        col = {name: i for i, name in enumerate(header)}
+        want = [c for c in AXIS_LOG_HEADER if c in col]
+        arr = _read_rows(p, fh, [col[c] for c in want], len(header), h + 1)
+    first = h + 1  # file line number of the first sample
     data = {c: arr[:, i] for i, c in enumerate(want)}
     finite = np.isfinite(arr)
     if not finite.all():
@@ -158,6 +156,43 @@ def read_axis_log(path: str | Path, *, max_gap_periods: float = 1.5) -> AxisLog:
     ref = np.column_stack([data["x_ref"], data["y_ref"], data.get("z_ref", nan)])
     act = np.column_stack([data["x_act"], data["y_act"], data.get("z_act", nan)])
     return AxisLog(t, data["k"].astype(np.int64), data["line"].astype(np.int64), ref, act)
+
+
+#: Rows parsed at once: the text of one block is held, never the whole file's (a 10 M-row log is ~0.7 GB of text).
+ROWS_PER_BLOCK = 1 << 18
+
+
+def _read_rows(p: Path, fh: BinaryIO, cols: list[int], ncols: int, first: int) -> NDArray[np.float64]:
+    """The sample rows after the header, block by block (``first``: file line number of the first row)."""
+    blocks: list[NDArray[np.float64]] = []
+    blank_at: int | None = None  # file line of a blank line after which only blank lines may follow
+    line_no = first
+    while True:
+        chunk = list(itertools.islice(fh, ROWS_PER_BLOCK))
+        if not chunk:
+            break
+        rows = [r.decode("utf-8", errors="replace") for r in chunk]
+        end = len(rows)
+        while end and not rows[end - 1].strip():  # blank lines after the last sample (an editor's) end nothing
+            end -= 1
+        if end and blank_at is not None:
+            raise InputError(p, blank_at, "empty line in the axis log")
+        if end < len(rows) and blank_at is None:
+            blank_at = line_no + end
+        body = rows[:end]
+        if body:
+            try:
+                arr = np.loadtxt(io.StringIO("".join(body)), delimiter=",", usecols=cols, ndmin=2)
+            except ValueError:
+                arr = None
+            if arr is None or arr.shape[0] != len(body):
+                _find_bad_row(p, [r.rstrip("\r\n") for r in body], cols, ncols, line_no)
+                raise InputError(p, None, "axis log could not be read")  # pragma: no cover
+            blocks.append(arr)
+        line_no += len(rows)
+    if not blocks:
+        raise InputError(p, None, "axis log has a header but no samples")
+    return blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
 
 
 def check_sample_times(p: Path, t: NDArray[np.float64], rowline: NDArray[np.int64], max_gap_periods: float) -> None:

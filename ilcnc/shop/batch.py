@@ -111,15 +111,27 @@ def _profile_list(src: Path, key: str, value: object) -> list[str]:
     raise InputError(src, None, f"{key}: must be a profile file name or a list of them, got {_short(value)}")
 
 
+def _inside(path: Path, folder: Path) -> bool:
+    """``path`` (symbolic links followed) lies in ``folder`` or below it."""
+    try:
+        path.resolve().relative_to(folder.resolve())
+    except ValueError:
+        return False
+    return True
+
+
 def jobs_from_path(source: str | Path, profile: str | Path | None, out_dir: str | Path, *,
-                   iterations: int | None = None) -> list[BatchJob]:
+                   iterations: int | None = None, allow_outside: bool = False) -> list[BatchJob]:
     """The jobs of a folder (every program file in it, sorted) or of a manifest.
+
+    A manifest's program paths are relative to its folder and must stay inside it (a manifest mailed in
+    from elsewhere names no file of this machine) unless ``allow_outside``.
 
     Raises
     ------
     InputError
-        A manifest that cannot be read, a part without a program or profile,
-        two parts writing the same output, or an empty folder.
+        A manifest that cannot be read, a part without a program or profile, a program outside the
+        manifest's folder, two parts writing the same output, or an empty folder.
     """
     import yaml
 
@@ -156,9 +168,13 @@ def jobs_from_path(source: str | Path, profile: str | Path | None, out_dir: str 
             profs = _profile_list(src, f"part {i}: {key}", part.get(key, default_profiles))
             if not profs:
                 raise InputError(src, None, f"part {i} ({part['program']}) has no profile and no default profile")
+            prog = base / str(part["program"])
+            if not allow_outside and not _inside(prog, base):
+                raise InputError(src, None, f"part {i}: program {_short(part['program'])} is outside the manifest's"
+                                 f" folder {base.resolve()}: move it there, or give --allow-outside")
             for pr in profs:
                 pp = Path(pr) if Path(pr).is_absolute() or pr == profile else base / pr
-                pairs.append((base / str(part["program"]), pp))
+                pairs.append((prog, pp))
         multi = len({p for _, p in pairs}) > 1
         jobs = [_job(p, pr, out, its, multi) for p, pr in pairs]
     seen: dict[str, str] = {}

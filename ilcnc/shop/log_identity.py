@@ -64,6 +64,8 @@ MAX_BACK_MM = 0.01
 MIN_BLOCK_MATCH = 0.2
 #: Least number of samples that must vote for an earlier program before a log is refused as its run.
 MIN_VOTES = 20
+#: Most samples the identity checks search the path for (every n-th of a longer log).
+MAX_CHECK_SAMPLES = 2_000_000
 #: Decimals of the fingerprint (1 nm: finer than any log's numbers, coarser than the parse's rounding).
 FINGERPRINT_DECIMALS = 6
 
@@ -147,6 +149,12 @@ def check_log_order(moves: NDArray[np.int64], ran: Program, source: str | Path, 
             i = int(known[-1])
             raise LogError(src, None, f"the log ends at line {int(ran.moves.line[seq[-1]])} (t = {t_s[i]:.3f} s), before"
                            f" the program's last command (line {int(ran.moves.line[last])}): it is not a whole run")
+
+
+def _every_nth(idx: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``idx``, or every n-th of it when it holds more than :data:`MAX_CHECK_SAMPLES`."""
+    step = -(-idx.size // MAX_CHECK_SAMPLES)
+    return idx[::step] if step > 1 else idx
 
 
 def _shift_estimate(resid: NDArray[np.float64], tangent: NDArray[np.float64]) -> NDArray[np.float64] | None:
@@ -259,10 +267,16 @@ def check_log_identity(ref_mm: NDArray[np.float64], act_mm: NDArray[np.float64],
     p_feed = (pm >= 0) & (ran.moves.kind[np.maximum(pm, 0)] != MOVE_RAPID)
     if not on_feed.any() or not p_feed.any():
         return LogIdentity(on_path_share=None, on_path_tol_mm=tol, lead_mm=lead_med)
-    dp = contour_error(path, np.asarray(planned_mm, dtype=np.float64)[p_feed], pm[p_feed]).dist_mm
+    # long runs are judged on every n-th sample (at most MAX_CHECK_SAMPLES): the shares are statistics, and a
+    # contour search over every planned sample would double the cost of measuring a log
+    p_idx = _every_nth(np.flatnonzero(p_feed))
+    dp = contour_error(path, np.asarray(planned_mm, dtype=np.float64)[p_idx], pm[p_idx]).dist_mm
     n_moves = len(ran.moves)
-    planned_on = np.bincount(pm[p_feed], weights=(np.isfinite(dp) & (dp <= tol)).astype(np.float64),
-                             minlength=n_moves) / np.maximum(np.bincount(pm[p_feed], minlength=n_moves), 1)
+    planned_on = np.bincount(pm[p_idx], weights=(np.isfinite(dp) & (dp <= tol)).astype(np.float64),
+                             minlength=n_moves) / np.maximum(np.bincount(pm[p_idx], minlength=n_moves), 1)
+    keep = _every_nth(np.flatnonzero(on_feed))
+    on_feed = np.zeros_like(on_feed)
+    on_feed[keep] = True
     e = contour_error(path, ref[on_feed], hint[on_feed])
     d = e.dist_mm
     share = float(np.mean(np.isfinite(d) & (d <= tol)))

@@ -85,6 +85,9 @@ class IterationEntry:
         Corrections clipped when computing it.
     output : str or None
         Where it was written for the machine (``--out``), for the record.
+    profile_sha256 : str or None
+        Hash of the profile this iteration was made and measured with (None: the one that started the run,
+        :attr:`LearnState.profile_sha256`; a run continued with ``--new-profile`` records the new one).
     """
 
     iteration: int
@@ -98,6 +101,7 @@ class IterationEntry:
     gain_scale: float = 1.0
     clipped: int = 0
     output: str | None = None
+    profile_sha256: str | None = None
 
 
 @dataclass
@@ -147,14 +151,28 @@ class LearnState:
             return self.iterations[-1]
         return None
 
-    def kept(self) -> list[IterationEntry]:
-        """Measured iterations the guard kept, in order."""
-        return [e for e in self.iterations if e.stats is not None and e.kept]
+    def kept(self, *, profile_sha256: str | None = None) -> list[IterationEntry]:
+        """Measured iterations the guard kept, in order (only those made with this profile, if given)."""
+        return [e for e in self.iterations if e.stats is not None and e.kept
+                and (profile_sha256 is None or self.profile_of(e) == profile_sha256)]
 
     def best(self) -> IterationEntry | None:
-        """The last kept iteration (the guard only keeps improvements)."""
+        """The kept iteration with the lowest RMS error (the later one of equals), as the learner chooses its output.
+
+        A kept iteration may be a hair worse than the best before it (the guard's allowance): the last kept is
+        not always the best, and a continued run starts from the best.
+        """
         k = self.kept()
-        return k[-1] if k else None
+        return min(reversed(k), key=lambda e: e.stats["rms"]) if k else None  # type: ignore[index]
+
+    def profile_of(self, entry: IterationEntry) -> str:
+        """Hash of the profile an iteration was made with."""
+        return entry.profile_sha256 or self.profile_sha256
+
+    @property
+    def current_profile_sha256(self) -> str:
+        """Hash of the profile the run goes on with: its last iteration's."""
+        return self.profile_of(self.iterations[-1]) if self.iterations else self.profile_sha256
 
     def find_program(self, sha: str) -> IterationEntry | None:
         """The iteration whose program has this hash."""

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.errors import InputError, LogError, StateError, UsageError
-from ilcnc.fileio import read_bytes, same_file, write_atomic
+from ilcnc.fileio import read_bytes, remove_stale_temporaries, same_file, write_atomic
 from ilcnc.learning.guard import LearningGuard
 from ilcnc.learning.learner import (
     Clip,
@@ -147,6 +147,7 @@ class LearnRequest:
     cutting_below_z_mm: float | None = None
     refine: bool = False
     relearn: bool = False
+    new_profile: bool = False
 
 
 @dataclass(slots=True, kw_only=True)
@@ -303,20 +304,23 @@ def _entry_json(e: IterationEntry) -> dict[str, Any]:
 # ---------------------------------------------------------------------------------------------
 
 
-def _record_writer(state: LearnState, program: Program) -> Callable[[IterationRecord], None]:
+def _record_writer(state: LearnState, program: Program, *, profile_sha: str, first: int,
+                   rerun_of: int | None) -> Callable[[IterationRecord], None]:
+    """Write each iteration of a virtual run into the state as a new entry (``first``: a continued run's re-run of
+    its best iteration ``rerun_of``)."""
     suffix = state.part.get("suffix", ".nc")
 
     def write(rec: IterationRecord) -> None:
         it = rec.iteration
-        existing = [e for e in state.iterations if e.iteration == it]
+        if any(e.iteration == it for e in state.iterations):
+            raise StateError(state.path, None, f"iteration {it} is recorded already: the learning state is damaged")
         name = f"iter-{it:03d}{suffix}"
         raw = rec.text.encode("latin-1")
-        if existing:  # a continued run re-measures its starting program: same file, new measurement
-            entry = existing[0]
-        else:
-            sha = state.write_file(name, raw)
-            entry = IterationEntry(it, name, sha, state.write_corrections(it, rec.corrections_mm))
-            state.iterations.append(entry)
+        sha = state.write_file(name, raw)
+        entry = IterationEntry(it, name, sha, state.write_corrections(it, rec.corrections_mm))
+        if profile_sha != state.profile_sha256:
+            entry.profile_sha256 = profile_sha
+        state.iterations.append(entry)
         sig = rec.signal
         if sig is not None:
             entry.errors = state.write_errors(it, sig.e_mm, sig.t_s, sig.valid)
@@ -325,6 +329,8 @@ def _record_writer(state: LearnState, program: Program) -> Callable[[IterationRe
         entry.gain_scale = rec.gain_scale
         entry.clipped = len(rec.clipped)
         entry.measured_from = {"kind": "virtual", "path": None, "sha256": None}
+        if it == first and rerun_of is not None:
+            entry.measured_from["rerun_of"] = rerun_of  # the program of that iteration, measured again
         if rec.shares:
             entry.measured_from["error_shares_mm"] = rec.shares
         if rec.air_stats is not None:
@@ -390,7 +396,9 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
         _out_suffix_matches(original, req.out)
         best = state.best()
         u0 = state.read_corrections(best) if best is not None else None
-        first = best.iteration if best is not None else 0
+        # a continued run re-measures its best program as a new iteration: no record is ever written over
+        first = state.iterations[-1].iteration + 1 if state.iterations else 0
+        rerun_of = best.iteration if best is not None else None
     else:
         original = read_program(req.program, default_units=profile.machine.units, data=data)
         _out_suffix_matches(original, req.out)  # before refining: a refusal costs no run
@@ -401,11 +409,11 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
         if refinement is not None:
             _store_refinement(state, refinement)
             notes.extend(refinement.notes())
-        u0, first = None, 0
+        u0, first, rerun_of = None, 0, None
     # what the reader read but does not model (rotary words, dwells, cycles, ...): in sight, not only in inspect
     notes[:0] = [f"reader: {w}" for w in original.warnings[:5]]
     learning = _learning_program(state, original, profile)
-    writer = _record_writer(state, learning)
+    writer = _record_writer(state, learning, profile_sha=profile_sha, first=first, rerun_of=rerun_of)
     f0 = None
     if profile.learning.refine.feed == "on" and u0 is not None:
         f0 = _stored_feed_scale(state, learning)
@@ -415,12 +423,12 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
     if result.feed is not None:
         notes.extend(result.feed.notes())
     best_rec = result.best_record
-    out = _write_output(req, best_rec.text, original, state.part["sha256"], best_rec.iteration)
     for e in state.iterations:
         if e.iteration == best_rec.iteration:
             e.output = str(req.out)
     state.status = result.status
-    state.save()
+    state.save()  # the state names the output before it exists: a kill between leaves no output it does not list
+    out = _write_output(req, best_rec.text, original, state.part["sha256"], best_rec.iteration)
     rule = result.cutting
     outcome = LearnOutcome(mode=LearnMode.VIRTUAL, program=req.program, output=out, state_dir=state.directory,
                            iterations=[r.to_json() for r in result.iterations], status=result.status,
@@ -618,6 +626,9 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
                              f" {best.program if best else 'the original'} (no further step)")
     used = state.used_measurement(src_sha)
     if used is not None:
+        rewritten = _rewrite_interrupted_output(req, state, used, original)
+        if rewritten is not None:
+            return rewritten
         raise LogError(source, None, f"this measurement was already used for iteration {used.iteration}: record a new"
                        " run of the latest program")
     entry = state.pending()
@@ -659,6 +670,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     entry.errors = state.write_errors(entry.iteration, meas.signal.e_mm, meas.signal.t_s, meas.signal.valid)
     entry.stats = meas.stats.to_json()
     entry.measured_from = {"kind": meas.kind, "path": str(source), "sha256": src_sha}
+    if profile_sha != state.profile_of(entry):  # measured under the profile of a --new-profile continuation
+        entry.profile_sha256 = profile_sha
     if log_fp is not None:
         entry.measured_from["samples_sha256"] = log_fp
     if meas.air_stats is not None:
@@ -667,7 +680,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     # the guard of the run (halved = the gain was halved at an earlier refusal: state.gain_scale < 1)
     guard = LearningGuard(resolution_mm=profile.machine.resolution_mm, gain_scale=state.gain_scale,
                           halved=state.gain_scale < 1.0)
-    worse, ref_stats = guard.compare(meas.stats, [e.stats for e in state.kept() if e.stats is not None])
+    worse, ref_stats = guard.compare(meas.stats, [e.stats for e in state.kept(profile_sha256=profile_sha)
+                                                  if e.stats is not None and e is not entry])
     entry.kept = not worse
     notes = list(meas.notes)
     if profile.learning.refine.feed == "on":
@@ -707,7 +721,9 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         message = f"{entry.iteration} iterations made (the limit): keep running {state.best().program}"  # type: ignore[union-attr]
         return _measured_outcome(req, state, LearnStatus.MAX_ITERATIONS, message, None, [], notes)
     learner = Learner.for_program(original, profile)
-    kept = state.kept()[-learner.law.memory:]
+    best = state.best()
+    assert best is not None
+    kept = [e for e in state.kept() if e.iteration <= best.iteration][-learner.law.memory:]  # the step starts at the best
     u_hist = [state.read_corrections(e) for e in kept]
     s_hist = []
     for e in kept:
@@ -731,14 +747,34 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     name = f"iter-{nxt:03d}{state.part['suffix']}"
     sha = state.write_file(name, text.encode("latin-1"))
     new_entry = IterationEntry(nxt, name, sha, state.write_corrections(nxt, u_new), gain_scale=state.gain_scale,
-                               clipped=len(clips), output=str(req.out))
-    out = _write_output(req, text, original, state.part["sha256"], nxt)
+                               clipped=len(clips), output=str(req.out),
+                               profile_sha256=None if profile_sha == state.profile_sha256 else profile_sha)
     state.iterations.append(new_entry)
-    state.save()
+    state.save()  # the state names the output before it exists: a kill between leaves no output it does not list
+    out = _write_output(req, text, original, state.part["sha256"], nxt)
     message = (f"iteration {entry.iteration} measured ({meas.kind}): max {meas.stats['max'] * 1e3:.2f} µm, RMS"
                f" {meas.stats['rms'] * 1e3:.2f} µm; wrote iteration {nxt}: run {req.out.name} on the machine and"
                " measure it next")
     return _measured_outcome(req, state, status, message, out, clips, notes, meas)
+
+
+def _rewrite_interrupted_output(req: LearnRequest, state: LearnState, used: IterationEntry,
+                                original: Program) -> LearnOutcome | None:
+    """The step made from this measurement was interrupted after the state named its output, before the output was
+    written (a kill, a full disk): write it now. None when there is nothing to resume (the output is there)."""
+    nxt = state.pending()
+    if nxt is None or nxt.iteration != used.iteration + 1 or nxt.output is None or not same_file(nxt.output, req.out):
+        return None
+    text = state.read_program_bytes(nxt).decode("latin-1")
+    want = text if not req.stamp else stamp_text(text, original.dialect, name=original.path.name,
+                                                 sha256=state.part["sha256"], iteration=nxt.iteration)
+    if req.out.is_file() and read_bytes(req.out) == want.encode("latin-1"):
+        return None  # written already: the measurement is simply given again
+    out = _write_output(req, text, original, state.part["sha256"], nxt.iteration)
+    message = (f"iteration {used.iteration} was measured from this log before, and iteration {nxt.iteration} made, but"
+               f" its output was not written (the run was interrupted): wrote it now; run {req.out.name} on the machine"
+               " and measure it next")
+    return _measured_outcome(req, state, LearnStatus.STEPPED, message, out, [], [])
 
 
 def _measured_outcome(req: LearnRequest, state: LearnState, status: str, message: str, out: Path | None,
@@ -823,7 +859,12 @@ def learn_part(req: LearnRequest, *, progress: Callable[[int, int, str], None] |
     if req.log is not None and req.points is not None:
         raise UsageError("--log", "and --points do not go together: give either, not both")
     _check_output_paths(req)
-    with state_lock(req.state or _default_state_dir(req.out)):
+    state_dir = req.state or _default_state_dir(req.out)
+    with state_lock(state_dir):
+        # what a killed run's atomic writes left (their process gone): the state's files and this output's
+        if state_dir.is_dir():
+            remove_stale_temporaries(state_dir)
+        remove_stale_temporaries(req.out.parent, req.out.name)
         return _learn_part(req, progress)
 
 
@@ -839,6 +880,17 @@ def _learn_part(req: LearnRequest, progress: Callable[[int, int, str], None] | N
         raise InputError(None, None, "--force starts a new virtual run; a step from --log/--points continues its --state")
     fresh = req.force or req.state is None or not LearnState.exists(req.state)
     state = None if fresh else LearnState.load(req.state)
+    if state is not None and profile_sha != state.current_profile_sha256 and not req.new_profile:
+        # continuing means the same machine model and law: figures made with another are not comparable
+        raise StateError(req.profile, None, f"is not the profile this learning run goes on with (sha256"
+                         f" {state.current_profile_sha256[:16]}, this file {profile_sha[:16]}): continue with that"
+                         " profile, or give --new-profile to go on from the run's best iteration under this one (a"
+                         " new branch of its history; the guard compares iterations of one profile only)")
+    if state is not None and profile_sha != state.current_profile_sha256:
+        # a new branch: the guard's halving and its stop were judgements of the other profile's law
+        state.gain_scale = 1.0
+        if state.pending() is None:
+            state.status = LearnStatus.LEARNING
     relation, entry = _resolve_part(req, data, state)
     if req.log is None and req.points is None:
         return _virtual(req, profile, profile_sha, data, state, relation, progress)
