@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1] / "ilcnc"
 #: Bottom first. A module may import from its own layer's package or from any layer below.
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("base", ("ilcnc.errors", "ilcnc.units", "ilcnc.outcomes", "ilcnc.fileio", "ilcnc.jsonout", "ilcnc._jit",
-              "ilcnc._threads", "ilcnc._lazy", "ilcnc._moved")),
+              "ilcnc._threads", "ilcnc._memory", "ilcnc._lazy", "ilcnc._moved")),
     ("data", ("ilcnc.program", "ilcnc.profile", "ilcnc.axislog")),  # siblings: none imports another
     ("contour", ("ilcnc.contour",)),
     ("vcnc", ("ilcnc.vcnc",)),

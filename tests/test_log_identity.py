@@ -173,3 +173,61 @@ def test_log_quantum_is_the_step_of_the_numbers() -> None:
     assert log_quantum_mm(np.array([1.25, 3.5, -0.75])) == 0.01
     assert log_quantum_mm(np.array([12.3456789, 1.0])) == pytest.approx(1e-7)
     assert log_quantum_mm(np.array([2.0, 3.0])) == 1.0
+
+
+def test_a_tncscope_log_names_klartext_blocks_by_their_numbers(tmp_path: Path) -> None:
+    # A TNC names the running block by its number: in samples/own/square.h block n is on line n + 1. Read as file
+    # lines, every sample was tied to the move before its own (found while building the block-number check, which
+    # refuses that). The export of the same run measures what the ilcnc log measures.
+    square = REPO / "samples" / "own" / "square.h"
+    run0 = tmp_path / "run0.csv"
+    assert runner.invoke(app, ["simulate", str(square), "--profile", str(MILL), "--out", str(run0)]).exit_code == 0
+    g = read_axis_log(run0)
+    block = np.where(g.line > 0, g.line - 1, 0)
+    rows = ["TNCscope 3.4.1 export", "Sampling time: 1 ms",
+            "Time [ms],NC block number,X nominal position [mm],Y nominal position [mm],Z nominal position [mm],"
+            "X actual position [mm],Y actual position [mm],Z actual position [mm]"]
+    for i in range(g.n_samples):
+        rows.append(f"{g.t_s[i] * 1e3:.3f},{block[i]}," + ",".join(f"{v:.6f}" for v in (*g.ref_mm[i], *g.act_mm[i])))
+    scope = tmp_path / "scope.csv"
+    scope.write_text("\n".join(rows) + "\n")
+    figs = []
+    for i, log in enumerate((run0, scope)):
+        res = runner.invoke(app, ["learn", str(square), "--profile", str(MILL), "--log", str(log), "--state",
+                                  str(tmp_path / f"st{i}"), "--out", str(tmp_path / f"o{i}.h"), "--json"])
+        assert res.exit_code == 0, res.output
+        figs.append(json.loads(res.output)["iterations"][0]["contour_error_mm"])
+    for k in ("max", "rms"):
+        assert figs[1][k] == pytest.approx(figs[0][k], rel=1e-9, abs=1e-12)
+    assert (tmp_path / "o0.h").read_bytes() == (tmp_path / "o1.h").read_bytes()
+
+
+def test_a_log_too_large_for_the_free_memory_is_refused_before_it_is_read(run0: Path, tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    # issue 25 item 13: a 10 M-row log under a 4 GB limit raised MemoryError (and without a limit Linux would kill
+    # the process when memory ran out, with no message); the need is estimated from the file before reading it
+    import ilcnc._memory as memory
+    from ilcnc.axislog.detect import estimate_log_samples
+    from ilcnc.shop.measure import LOG_BYTES_PER_SAMPLE
+
+    n = read_axis_log(run0).n_samples
+    # three 64 KB windows of the file, not the whole: the line length varies with the numbers (measured 1.9 % off
+    # here); a memory bound needs the size to a few per cent
+    assert abs(estimate_log_samples(run0) - n) <= 0.05 * n
+    monkeypatch.setattr(memory, "available_memory_bytes", lambda: n * LOG_BYTES_PER_SAMPLE // 2)
+    line = _one_error(_learn(run0, tmp_path / "st", tmp_path / "o.ngc"))
+    assert line.startswith(f"error: {run0}: measuring this log needs about "), line
+    assert "record a shorter run, or keep every n-th sample" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_the_free_memory_counts_the_address_space_limit() -> None:
+    import subprocess
+    import sys
+
+    code = ("import resource; from ilcnc._memory import available_memory_bytes as a; free = a();"
+            " resource.setrlimit(resource.RLIMIT_AS, (free // 2 + 2**31, resource.RLIM_INFINITY));"
+            " print(free, a())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    free, limited = int(out[0]), int(out[1])
+    assert 0 < limited < free

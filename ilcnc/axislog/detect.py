@@ -13,7 +13,7 @@ from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes
 from ilcnc.units import LENGTH_UNITS
 
-__all__ = ["LOG_FORMATS", "detect_log_format", "read_log"]
+__all__ = ["LOG_FORMATS", "detect_log_format", "estimate_log_samples", "read_log"]
 
 
 # ---------------------------------------------------------------------------
@@ -79,6 +79,32 @@ def _is_plain_number(cell: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def estimate_log_samples(path: str | Path, *, window_bytes: int = 65536) -> int:
+    """About how many samples a log holds, from its size and the lines of three windows (start, middle, end) of
+    it, without reading it whole; >= 0.
+
+    Data lines are told from comments and headers by starting with a number (or a sign or a dot).
+    """
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        pieces = []
+        with p.open("rb") as fh:
+            for at in sorted({0, max(0, size // 2 - window_bytes // 2), max(0, size - window_bytes)}):
+                fh.seek(at)
+                lines = fh.read(window_bytes).split(b"\n")
+                if at > 0:
+                    lines = lines[1:]  # a partial line
+                pieces += lines[:-1] if at + window_bytes < size else lines
+    except OSError:
+        return 0
+    data = [ln for ln in pieces if ln.strip()[:1] in b"0123456789-+." and ln.strip()]
+    if not data:
+        return 0
+    per_line = sum(len(ln) + 1 for ln in data) / len(data)
+    return int(size / per_line)
 
 
 def read_log(

@@ -48,6 +48,9 @@ class AxisLog:
         Source line of the active block (0 when none).
     ref_mm, act_mm : ndarray (N, 3)
         Commanded and actual X, Y, Z, mm (Z is NaN in a 2-axis log).
+    line_is_block_number : bool
+        ``line`` holds the NC block numbers a control reports (a TNCscope export), not file lines: a Klartext
+        program's block ``n`` is on the line :func:`ilcnc.program.heidenhain_lexer.block_number_lines` says.
     """
 
     t_s: NDArray[np.float64]
@@ -55,6 +58,7 @@ class AxisLog:
     line: NDArray[np.int64]
     ref_mm: NDArray[np.float64]
     act_mm: NDArray[np.float64]
+    line_is_block_number: bool = False
 
     @property
     def n_samples(self) -> int:

@@ -473,6 +473,6 @@ def read_tncscope(
     nan = np.full(n, math.nan)
     ref = np.column_stack([pos["x_ref"], pos["y_ref"], pos.get("z_ref", nan)])
     act = np.column_stack([pos["x_act"], pos["y_act"], pos.get("z_act", nan)])
-    return AxisLog(t, np.full(n, -1, dtype=np.int64), block, ref, act)
+    return AxisLog(t, np.full(n, -1, dtype=np.int64), block, ref, act, line_is_block_number=True)
 
 

@@ -64,6 +64,7 @@ __all__ = [
     "Motion",
     "Run",
     "Stop",
+    "block_number_lines",
     "cycle_name",
     "fast_motion",
     "ffill"
@@ -201,6 +202,27 @@ _CYCL_RE = re.compile(r"CYCLE?\s+DEF\s+(\d{1,4})(?:\.(\d{1,3}))?\b[ \t]*")
 _TOOL_WORD = re.compile(r"DR2|DL|DR|S|F|L|R2|R")
 _BLK_SUB = re.compile(r"0\.([12])\b")
 _TOOL_ID = re.compile(r"\d{1,9}(?:\.\d{1,3})?|Q[LR]?\d+")
+
+
+def block_number_lines(text: str) -> np.ndarray:
+    """File line (1-based) of each Klartext block number: ``out[n]`` is the line of block ``n`` (0: no such block,
+    or a number given to more than one line). A TNC names the running block by this number, not by its line."""
+    first: dict[int, int] = {}
+    twice: set[int] = set()
+    for i, line in enumerate(text.splitlines(), start=1):
+        m = _PREFIX.match(line)
+        if m is None or m.group(2) is None:
+            continue
+        n = int(m.group(2))
+        if n in first:
+            twice.add(n)
+        else:
+            first[n] = i
+    out = np.zeros(max(first, default=-1) + 1, dtype=np.int64)
+    for n, i in first.items():
+        if n not in twice:
+            out[n] = i
+    return out
 
 
 def _comment_free(s: str) -> str:

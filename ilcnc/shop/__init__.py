@@ -22,7 +22,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'LogIdentity', 'MIN_ON_PATH_SHARE', 'check_log_identity', 'check_log_order', 'log_quantum_mm',
         'samples_fingerprint'
     ),
-    'measure': ('Measurement', 'interpolate_along_path', 'measure_log', 'measure_points'),
+    'measure': ('Measurement', 'check_log_memory', 'interpolate_along_path', 'measure_log', 'measure_points'),
     'report': ('CommandDiff', 'MAX_PLOT_POINTS', 'REPORT_FILES', 'ReportRun', 'is_report_file', 'write_report'),
     'state': ('IterationEntry', 'LearnState', 'STATE_FILE', 'sha256_bytes', 'sha256_file', 'state_lock'),
     'workflow': ('LearnOutcome', 'LearnRequest', 'find_stamp', 'learn_part', 'stamp_text', 'unstamp_text'),

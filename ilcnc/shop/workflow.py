@@ -460,10 +460,11 @@ def _refine_from_log(req: LearnRequest, profile: MachineProfile, original: Progr
     """The first measured step of a refined run: refine where the log of the original program erred (no extra
     machine run), and that log read as a run of the refined program."""
     from ilcnc.axislog.detect import read_log
-    from ilcnc.shop.measure import log_on_refined, measure_log
+    from ilcnc.shop.measure import check_log_memory, log_on_refined, measure_log
 
     assert req.log is not None
     period = req.log_period_s if req.log_period_s is not None else profile.machine.servo_period_s
+    check_log_memory(req.log)
     log = read_log(req.log, fmt=req.log_format, period_s=period, units=req.log_units, columns=req.log_columns,
                    offset=req.log_offset)
     meas = measure_log(log, original, original, profile, error_kind(profile), source=req.log, units=req.log_units)
@@ -584,7 +585,7 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     from ilcnc.axislog.detect import read_log
     from ilcnc.axislog.points import read_points
     from ilcnc.shop.log_identity import samples_fingerprint
-    from ilcnc.shop.measure import measure_log, measure_points
+    from ilcnc.shop.measure import check_log_memory, measure_log, measure_points
 
     if req.state is None:
         raise UsageError("--log/--points", "make one learning step per run on the machine: give --state DIR to keep the"
@@ -646,6 +647,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     log_fp: str | None = None  # the log's samples' fingerprint (a log used once is known again in other text)
     if req.log is not None:
         period = req.log_period_s if req.log_period_s is not None else profile.machine.servo_period_s
+        if refined_log is None:
+            check_log_memory(req.log)
         log = refined_log if refined_log is not None else read_log(
             req.log, fmt=req.log_format, period_s=period, units=req.log_units, columns=req.log_columns,
             offset=req.log_offset)
@@ -661,7 +664,12 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
                     read_program(state.file(e.program), default_units=profile.machine.units,
                                  data=state.read_program_bytes(e)))
                    for e in earlier_runs if e.iteration == 0 or e in earlier_runs[-3:]]
-        meas = measure_log(log, ran, original, profile, kind, source=req.log, units=req.log_units, earlier=earlier)
+        try:
+            meas = measure_log(log, ran, original, profile, kind, source=req.log, units=req.log_units,
+                               earlier=earlier)
+        except MemoryError:  # the estimate of check_log_memory fell short: still one line, the state untouched
+            raise LogError(req.log, None, f"ran out of memory measuring this log ({log.n_samples:,} samples): record a"
+                           " shorter run, or keep every n-th sample") from None
     else:
         assert req.points is not None
         meas = measure_points(read_points(req.points), original, profile, source=req.points,

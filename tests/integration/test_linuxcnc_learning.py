@@ -173,3 +173,19 @@ def test_measured_error_is_the_distance_to_the_path(loop, compass_head, case, ru
     np.testing.assert_allclose(m.contour_mm[sel], indep[sel], rtol=0, atol=1e-9)
     # the cutting moves' figures are taken from these distances (the air moves' apart)
     assert m.stats["max"] <= indep[sel].max() + 1e-9
+
+
+def test_the_log_of_the_program_before_is_refused_on_linuxcnc(loop, tmp_path) -> None:
+    # issue 25 item 2 on LinuxCNC: the state waits for the log of iteration 1; the original's log, one sample short
+    # (other bytes, other samples: neither hash knows it), fits the original's path, not iteration 1's
+    state = tmp_path / "state"
+    shutil.copytree(loop["open_state"], state)
+    before = (state / "state.json").read_bytes()
+    rows = loop["logs"][0].read_text().splitlines()
+    old = tmp_path / "old.csv"
+    old.write_text("\n".join(rows[:-1]) + "\n")
+    res = runner.invoke(app, ["learn", str(loop["part"]), "--profile", str(PROFILE), "--log", str(old), "--state",
+                              str(state), "--out", str(tmp_path / "x.ngc")])
+    assert res.exit_code == 1 and len(res.output.strip().splitlines()) == 1, res.output
+    assert "fit the program of iteration 0 (iter-000.ngc) better than iter-001.ngc" in res.output, res.output
+    assert (state / "state.json").read_bytes() == before and not (tmp_path / "x.ngc").exists()
