@@ -30,6 +30,12 @@ line naming the file and what to do:
   original against its first corrected program 11 %; jsdc shifted by
   0.01 mm 16 %. When a constant offset puts the log on the path, the message
   names it.
+* **Forward, on the named moves**: along a move, the commanded position never
+  goes back (repeated samples do), and it lies on the move its block names
+  more often than on the one before or after (line numbers of another version
+  of the program do not).
+* **Not an earlier program's**: where the program that ran and an earlier one
+  of the run differ, the commanded positions must not lie nearer the earlier.
 
 The log's samples also get a fingerprint independent of how they are written
 (:func:`samples_fingerprint`), so a log used once is recognised again after its
