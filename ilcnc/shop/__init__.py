@@ -15,7 +15,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'inspect': ('InspectReport', 'command_table_csv', 'inspect_program', 'print_report'),
     'linuxcnc': (
         'DEFAULT_CONFIG_DIR', 'DEFAULT_LOCK_TIMEOUT_S', 'LinuxCNCBusyError', 'LockHolder', 'MAX_TIME_SCALE',
-        'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'run_lock', 'run_program'
+        'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'run_lock', 'run_program',
+        'stray_percent_line'
     ),
     'linuxcnc_config': ('ini_in', 'read_ini', 'read_ini_text', 'scale_program_time', 'scaled_ini_text'),
     'log_identity': (

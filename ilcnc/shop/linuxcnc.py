@@ -85,7 +85,8 @@ __all__ = [
     "lock_holder",
     "other_linuxcnc",
     "run_lock",
-    "run_program"
+    "run_program",
+    "stray_percent_line"
 ]
 
 #: The simulation configuration shipped with ilcnc (source checkout).
@@ -720,6 +721,16 @@ def _last_program_line(raw_log: Path) -> int | None:
     return last
 
 
+def stray_percent_line(text: str) -> int | None:
+    """The line of a ``%`` LinuxCNC refuses: any line that is only ``%`` when the program's first non-blank line is
+    not ``%`` (rs274ngc reads ``%`` as a delimiter only in pairs from the first line). None when there is none."""
+    lines = text.splitlines()
+    first = next((ln.strip() for ln in lines if ln.strip()), "")
+    if first == "%":
+        return None
+    return next((i for i, ln in enumerate(lines, start=1) if ln.strip() == "%"), None)
+
+
 def run_program(
     program_path: str | Path,
     config_dir: str | Path | None = None,
@@ -793,11 +804,16 @@ def run_program(
         raise InputError(program, None, f"settle time must be >= 0 s, got {settle_s!r}")
     if not (isinstance(lock_timeout_s, int | float) and lock_timeout_s >= 0):
         raise InputError(program, None, f"lock timeout must be >= 0 s, got {lock_timeout_s!r}")
+    data = read_bytes(program)
+    text = data.decode("latin-1")
+    line = stray_percent_line(text)
+    if line is not None:  # LinuxCNC says so only when the run reaches the line: minutes for a long program
+        raise InputError(program, line, "LinuxCNC refuses a '%' line unless the program's first line is '%' as well"
+                         " (\"Bad character '%' used\", reported only when the run gets there): add '%' as the first"
+                         " line, or remove this one")
     why = linuxcnc_available()
     if why is not None:
         raise InputError(program, None, why)
-    data = read_bytes(program)
-    text = data.decode("latin-1")
     config = Path(config_dir) if config_dir is not None else DEFAULT_CONFIG_DIR
     ini_src = ini_in(config)
     cfg_dir = ini_src.parent

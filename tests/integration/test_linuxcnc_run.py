@@ -307,3 +307,16 @@ def test_commands_from_lines_follows_execution_order() -> None:
     line = np.array([3, 3, 4, 5, 5, 6, 7, 8, 9, 9, 12, 0])
     k = commands_from_lines(line, prog)
     assert k.tolist() == [-1, -1, 0, 1, 1, 2, 3, 4, -1, -1, -1, -1]
+
+
+def test_a_stray_percent_is_refused_before_linuxcnc_starts(tmp_path: Path) -> None:
+    # compass.ngc ends with '%' but does not start with one: LinuxCNC said "Bad character '%' used" only when the
+    # run reached its last line, 75 s later at time scale 8. Refused before launching, with the line.
+    prog = tmp_path / "compass.ngc"
+    prog.write_bytes((REPO / "samples" / "compass.ngc").read_bytes())
+    n = len(prog.read_text().splitlines())
+    with pytest.raises(InputError) as ei:
+        lcnc.run_program(prog, CONFIG, tmp_path / "x.log")
+    assert ei.value.line == n and "add '%' as the first line" in ei.value.problem
+    assert lcnc.stray_percent_line("%\nG1 X1\n%\n") is None  # a delimited program
+    assert lcnc.stray_percent_line("G1 X1 (50% speed)\nM2\n") is None  # a % in a comment
