@@ -464,7 +464,8 @@ def _print_learning(outcome, console) -> None:
         console.print(f"{outcome.air_commands} G01 commands in the air or ending there (retracts, approaches) are kept as"
                       " programmed (learning.air_moves: keep)")
     for c in outcome.clips[:20]:
-        console.print(f"clipped: k={c.k} line {c.line} {c.axis.upper()} {c.wanted_mm:+.4f} → {c.applied_mm:+.4f} mm")
+        console.print(f"clipped ({c.cause}): k={c.k} line {c.line} {c.axis.upper()} {c.wanted_mm:+.4f} →"
+                      f" {c.applied_mm:+.4f} mm")
     if len(outcome.clips) > 20:
         console.print(f"clipped: {len(outcome.clips) - 20} more (see --json or --report)")
     if outcome.frozen:

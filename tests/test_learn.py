@@ -14,6 +14,9 @@ from ilcnc.errors import ProfileError
 from ilcnc.learning.guard import grew
 from ilcnc.learning.laws import PidAceLaw, PLaw, SecondOrderLaw, first_markov_per_s, make_law
 from ilcnc.learning.learner import (
+    CLIP_ARC,
+    CLIP_BOUND,
+    CLIP_MOVE_LENGTH,
     UpdateShaper,
     arc_start_constraint,
     clip_corrections,
@@ -278,8 +281,10 @@ def test_cam_program_learned_five_iterations_cuts_rms_by_70_percent(jsdc_run) ->
             assert r.stats["max"] > best_max, (i, r.stats)
     assert res.reduction("rms") >= 0.70, rms
     assert res.best_record.stats["max"] < res.iterations[0].stats["max"]
-    # never beyond the bound, nothing clipped
-    assert not res.clips
+    # never beyond the bound; where a correction would turn one of jsdc's short moves around, the move limiter
+    # scales it down and reports it (issue 22 item 1)
+    assert not [c for c in res.clips if c.cause == CLIP_BOUND]
+    assert {c.cause for c in res.clips} <= {CLIP_MOVE_LENGTH, CLIP_ARC}
     assert np.abs(res.best_record.corrections_mm).max() <= prof.learning.correction_bound_mm
     changed = _only_coordinates_changed(prog.text, res.best_record.text)
     assert len(changed) > 1000

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from ilcnc.errors import ProfileError
 from ilcnc.learning.laws import SecondOrderLaw, ccc_error_map, first_markov_per_s, make_law
-from ilcnc.learning.learner import LearnResult, learn_virtual, program_with_corrections
+from ilcnc.learning.learner import CLIP_BOUND, CLIP_MOVE_LENGTH, LearnResult, learn_virtual, program_with_corrections
 from ilcnc.profile.load import load_profile, profile_from_dict
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program import Program, read_program
@@ -218,7 +218,14 @@ def test_seed000_ace_with_the_paper_gains(s000_ace: LearnResult) -> None:
     red = _reduction(s000_ace, 3)
     # §III.B: 81.7 % after 3 updates; measured 81.5 % (79.2 % without learn.py's keep_moves_forward)
     assert abs(red - S000_ACE_REDUCTION) <= S000_REDUCTION_TOL, f"reduction {red:.1%}"
-    assert not s000_ace.clips  # the 10 mm bound never clips the paper's law
+    # the 10 mm bound never clips the paper's law; the move limiter (learn.py keep_moves_forward) changes it, and
+    # says so (issue 22 item 1: it did so silently). Measured 2026-12-02: 68, 109, 116 commands of the three
+    # updates, up to 4.92 mm each; it acts on G93 blocks still, where it protects nothing (issue 22, open)
+    assert not [c for c in s000_ace.clips if c.cause == CLIP_BOUND]
+    per_update = [len({c.k for c in r.clipped if c.cause == CLIP_MOVE_LENGTH}) for r in s000_ace.iterations[1:]]
+    # a command whose wanted change sits within rounding of half its length may flip across toolchains: +-2
+    assert all(abs(n - want) <= 2 for n, want in zip(per_update, (68, 109, 116), strict=True)), per_update
+    assert max(abs(c.wanted_mm - c.applied_mm) for c in s000_ace.clips) == pytest.approx(4.918, abs=0.001)
     # Table I: mean 0.0149 -> 0.012 mm; over ilcnc's stand-in path 0.0338 -> 0.0051 mm
     assert s000_ace.iterations[3].stats["mean"] < s000_ace.iterations[0].stats["mean"]
 
@@ -394,7 +401,12 @@ def test_seed003_ccc_is_smaller_at_every_iteration_and_does_not_oscillate(s003_r
     rms = [rec.stats["rms"] for rec in s003_runs["ccc"].iterations]
     assert all(b <= a for a, b in itertools.pairwise(ccc))
     assert all(b <= a for a, b in itertools.pairwise(rms))
-    assert not s003_runs["ccc"].clips
+    # the bound never clips; the move limiter defers the law's first 0.5 mm step along the line and says so
+    # (measured 2026-12-02: 134 commands at the first update, 471 at the tenth, up to 0.551 mm; issue 22 item 1)
+    clips = s003_runs["ccc"].clips
+    assert not [c for c in clips if c.cause == CLIP_BOUND]
+    assert len({c.k for c in s003_runs["ccc"].iterations[1].clipped if c.cause == CLIP_MOVE_LENGTH}) >= 100
+    assert max(abs(c.wanted_mm - c.applied_mm) for c in clips) == pytest.approx(0.551, abs=0.001)
     # ILC still learns under the CCC (-32 % in 10 iterations); without CCC it learns faster from 18x higher
     assert ccc[-1] < 0.75 * ccc[0] and ind[-1] < 0.2 * ind[0]
 

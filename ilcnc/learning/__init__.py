@@ -21,8 +21,9 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'first_markov_per_s', 'make_law'
     ),
     'learner': (
-        'Clip', 'IterationRecord', 'LearnResult', 'Learner', 'UpdateShaper', 'clip_corrections',
-        'correctable_commands', 'keep_arcs_valid', 'keep_moves_forward', 'learn_virtual', 'program_with_corrections'
+        'CLIP_ARC', 'CLIP_BOUND', 'CLIP_MOVE_LENGTH', 'Clip', 'IterationRecord', 'LearnResult', 'Learner',
+        'UpdateShaper', 'changed_coordinates', 'clip_corrections', 'correctable_commands', 'keep_arcs_valid',
+        'keep_moves_forward', 'learn_virtual', 'program_with_corrections'
     ),
     'lifted_check': (
         'DEFAULT_GAMMAS', 'DEFAULT_MAX_COMMANDS', 'DEFAULT_Q_FILTERS_HZ', 'LiftedCandidate', 'LiftedCheck',

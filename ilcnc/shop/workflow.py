@@ -181,8 +181,8 @@ class LearnOutcome:
             "iterations": self.iterations,
             "status": self.status,
             "message": self.message,
-            "clipped": [{"k": c.k, "line": c.line, "axis": c.axis, "wanted_mm": c.wanted_mm, "applied_mm": c.applied_mm}
-                        for c in self.clips],
+            "clipped": [{"k": c.k, "line": c.line, "axis": c.axis, "wanted_mm": c.wanted_mm, "applied_mm": c.applied_mm,
+                         "cause": c.cause} for c in self.clips],
             "frozen_commands": self.frozen,
             "air_commands": self.air_commands,
             "cutting_rule": self.cutting,
