@@ -14,18 +14,13 @@ from ilcnc.errors import InputError
 
 
 def read_bytes(path: str | Path) -> bytes:
-    """Read a whole input file, turning OS errors into one-line input errors."""
+    """Read a whole input file, turning OS errors into one-line input errors (:func:`open_input`'s checks)."""
     p = Path(path)
-    try:
-        if p.exists() and not p.is_dir() and not p.is_file():  # a FIFO or a device would block or never end
-            raise InputError(p, None, "is not a regular file (a pipe or a device): give a file")
-        return p.read_bytes()
-    except FileNotFoundError:
-        raise InputError(p, None, "file not found") from None
-    except IsADirectoryError:
-        raise InputError(p, None, "is a directory, expected a file") from None
-    except OSError as exc:
-        raise InputError(p, None, f"cannot read: {exc.strerror}") from None
+    with open_input(p) as fh:
+        try:
+            return fh.read()
+        except OSError as exc:
+            raise InputError(p, None, f"cannot read: {exc.strerror}") from None
 
 
 def open_input(path: str | Path) -> BinaryIO:
@@ -33,7 +28,7 @@ def open_input(path: str | Path) -> BinaryIO:
     large file line by line instead of whole)."""
     p = Path(path)
     try:
-        if p.exists() and not p.is_dir() and not p.is_file():
+        if p.exists() and not p.is_dir() and not p.is_file():  # a FIFO or a device would block or never end
             raise InputError(p, None, "is not a regular file (a pipe or a device): give a file")
         return p.open("rb")
     except FileNotFoundError:
@@ -42,6 +37,12 @@ def open_input(path: str | Path) -> BinaryIO:
         raise InputError(p, None, "is a directory, expected a file") from None
     except OSError as exc:
         raise InputError(p, None, f"cannot read: {exc.strerror}") from None
+
+
+def inside(path: str | Path, folder: str | Path) -> bool:
+    """``path`` is ``folder`` or lies under it, symbolic links followed."""
+    p, f = Path(path).resolve(), Path(folder).resolve()
+    return p == f or f in p.parents
 
 
 def same_file(a: str | Path, b: str | Path) -> bool:

@@ -342,15 +342,8 @@ def clip_corrections(
     u: NDArray[np.float64], bound_mm: float, lines: NDArray[np.integer]
 ) -> tuple[NDArray[np.float64], list[Clip]]:
     """Clip every coordinate of ``u`` (K, 3) to ``±bound_mm``; report each clip with its source line."""
-    over = np.abs(u) > bound_mm
-    clips: list[Clip] = []
-    if over.any():
-        ks, axs = np.nonzero(over)
-        clipped = np.clip(u, -bound_mm, bound_mm)
-        for k, a in zip(ks.tolist(), axs.tolist(), strict=True):
-            clips.append(Clip(int(k), int(lines[k]), AXES[a], float(u[k, a]), float(clipped[k, a]), CLIP_BOUND))
-        return clipped, clips
-    return u.copy(), clips
+    clipped = np.clip(u, -bound_mm, bound_mm)
+    return clipped, changed_coordinates(u, clipped, lines, CLIP_BOUND, tol_mm=0.0)
 
 
 # ---------------------------------------------------------------------------------------------

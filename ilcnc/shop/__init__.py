@@ -20,8 +20,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     'linuxcnc_config': ('ini_in', 'read_ini', 'read_ini_text', 'scale_program_time', 'scaled_ini_text'),
     'log_identity': (
-        'LogIdentity', 'MIN_ON_PATH_SHARE', 'check_log_identity', 'check_log_order', 'log_quantum_mm',
-        'samples_fingerprint'
+        'LogIdentity', 'MIN_ON_PATH_SHARE', 'check_block_numbers', 'check_log_identity', 'check_log_order',
+        'log_quantum_mm', 'samples_fingerprint'
     ),
     'measure': ('Measurement', 'check_log_memory', 'interpolate_along_path', 'measure_log', 'measure_points'),
     'report': ('CommandDiff', 'MAX_PLOT_POINTS', 'REPORT_FILES', 'ReportRun', 'is_report_file', 'write_report'),

@@ -33,7 +33,7 @@ from typing import Any
 
 from ilcnc._threads import limit_process, thread_limit_scope, threads_per_part
 from ilcnc.errors import IlcncError, InputError
-from ilcnc.fileio import read_bytes, write_atomic
+from ilcnc.fileio import inside, read_bytes, write_atomic
 from ilcnc.outcomes import PartStatus
 
 __all__ = ["BatchJob", "PartResult", "jobs_from_path", "run_batch", "summary_csv"]
@@ -111,15 +111,6 @@ def _profile_list(src: Path, key: str, value: object) -> list[str]:
     raise InputError(src, None, f"{key}: must be a profile file name or a list of them, got {_short(value)}")
 
 
-def _inside(path: Path, folder: Path) -> bool:
-    """``path`` (symbolic links followed) lies in ``folder`` or below it."""
-    try:
-        path.resolve().relative_to(folder.resolve())
-    except ValueError:
-        return False
-    return True
-
-
 def jobs_from_path(source: str | Path, profile: str | Path | None, out_dir: str | Path, *,
                    iterations: int | None = None, allow_outside: bool = False) -> list[BatchJob]:
     """The jobs of a folder (every program file in it, sorted) or of a manifest.
@@ -169,7 +160,7 @@ def jobs_from_path(source: str | Path, profile: str | Path | None, out_dir: str 
             if not profs:
                 raise InputError(src, None, f"part {i} ({part['program']}) has no profile and no default profile")
             prog = base / str(part["program"])
-            if not allow_outside and not _inside(prog, base):
+            if not allow_outside and not inside(prog, base):
                 raise InputError(src, None, f"part {i}: program {_short(part['program'])} is outside the manifest's"
                                  f" folder {base.resolve()}: move it there, or give --allow-outside")
             for pr in profs:

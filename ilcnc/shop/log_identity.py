@@ -57,8 +57,8 @@ from ilcnc.contour.path import PathGeometry
 from ilcnc.errors import LogError
 from ilcnc.program.model import MOVE_RAPID, Program
 
-__all__ = ["MIN_ON_PATH_SHARE", "LogIdentity", "check_log_identity", "check_log_order", "log_quantum_mm",
-           "samples_fingerprint"]
+__all__ = ["MIN_ON_PATH_SHARE", "LogIdentity", "check_block_numbers", "check_log_identity", "check_log_order",
+           "log_quantum_mm", "samples_fingerprint"]
 
 #: Least share, relative to the profile's planner's, of the commanded feed samples on the path of the program that ran.
 MIN_ON_PATH_SHARE = 0.5
@@ -118,8 +118,18 @@ def log_quantum_mm(values: NDArray[np.float64], *, max_decimals: int = 9) -> flo
     return 10.0**-max_decimals
 
 
+def check_block_numbers(moves: NDArray[np.int64], source: str | Path) -> None:
+    """Refuse a log none of whose samples names a block of the program (``moves``: each sample's move from its
+    block number, -1: none)."""
+    if not (moves >= 0).any():
+        raise LogError(Path(source), None, "the log has no block numbers (every k is -1 and every line 0): its samples"
+                       " cannot be tied to the program's commands; record the block number with the positions"
+                       " (LinuxCNC: motion.program-line; TNCscope: the block-number signal)")
+
+
 def check_log_order(moves: NDArray[np.int64], ran: Program, source: str | Path, t_s: NDArray[np.float64]) -> None:
-    """Refuse a log without block numbers, or one that does not run the program's commands once, first to last.
+    """Refuse a log that does not run the program's commands once, first to last (after
+    :func:`check_block_numbers`).
 
     Parameters
     ----------
@@ -132,12 +142,9 @@ def check_log_order(moves: NDArray[np.int64], ran: Program, source: str | Path, 
     t_s : ndarray (N,)
         Sample times, s (for messages).
     """
+    check_block_numbers(moves, source)
     src = Path(source)
     known = np.flatnonzero(moves >= 0)
-    if known.size == 0:
-        raise LogError(src, None, "the log has no block numbers (every k is -1 and every line 0): its samples cannot be"
-                       " tied to the program's commands; record the block number with the positions (LinuxCNC:"
-                       " motion.program-line; TNCscope: the block-number signal)")
     seq = moves[known]
     back = np.flatnonzero(np.diff(seq) < 0)
     if back.size:

@@ -31,7 +31,7 @@ from ilcnc.contour.figures import ErrorFigures
 from ilcnc.errors import LogError
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import FLAG_CUTTER_COMP, MOVE_RAPID, Program
-from ilcnc.shop.log_identity import LogIdentity, check_log_identity, check_log_order
+from ilcnc.shop.log_identity import LogIdentity, check_block_numbers, check_log_identity, check_log_order
 from ilcnc.units import MM_PER_INCH
 from ilcnc.vcnc.command_error import CommandSignal, command_signal_from_run, measurement_gate_mm, reference_command_samples
 
@@ -92,12 +92,14 @@ def _stats(d: NDArray[np.float64]) -> ErrorFigures:
 
 def sample_moves(log: AxisLog, ran: Program) -> NDArray[np.int64]:
     """Move of the running block at each sample (-1 before the first), from the log's k or line columns."""
-    mv = numbered_moves(log, ran)
-    # forward fill samples with no block (the settle tail, a line without motion)
+    return _forward_filled(numbered_moves(log, ran))
+
+
+def _forward_filled(mv: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Samples that name no block (the settle tail, a line without motion) take the last one named before."""
     idx = np.where(mv >= 0, np.arange(mv.size), -1)
     np.maximum.accumulate(idx, out=idx)
-    filled = np.where(idx >= 0, mv[np.maximum(idx, 0)], -1)
-    return filled
+    return np.where(idx >= 0, mv[np.maximum(idx, 0)], -1)
 
 
 def file_lines(log: AxisLog, ran: Program) -> NDArray[np.int64]:
@@ -113,15 +115,17 @@ def file_lines(log: AxisLog, ran: Program) -> NDArray[np.int64]:
     return np.where(ok, table[np.where(ok, line, 0)], 0)
 
 
-def numbered_moves(log: AxisLog, ran: Program) -> NDArray[np.int64]:
-    """Move of the block each sample names by its k or line column (-1 where it names none)."""
+def numbered_moves(log: AxisLog, ran: Program, lines: NDArray[np.int64] | None = None) -> NDArray[np.int64]:
+    """Move of the block each sample names by its k or line column (-1 where it names none); ``lines``: the
+    log's :func:`file_lines`, when the caller has them."""
     mv = np.full(log.n_samples, -1, np.int64)
     k = np.asarray(log.k, dtype=np.int64)
     cm = ran.command_moves
     has_k = (k >= 0) & (k < cm.size)
     if has_k.any():
         mv[has_k] = cm[k[has_k]]
-    lines = file_lines(log, ran)
+    if lines is None:
+        lines = file_lines(log, ran)
     need = ~has_k & (lines > 0)
     if need.any():
         by_line = moves_from_lines(lines, ran)
@@ -199,10 +203,9 @@ def measure_log(
             raise LogError(src, None, f"{share:.0%} of the log's samples run lines that hold no move of {ran.path.name}"
                            f" (e.g. line {bad}): it is a log of another program")
     t_s = np.asarray(log.t_s, dtype=np.float64)
-    numbered = numbered_moves(log, ran)
-    if not (numbered >= 0).any():
-        check_log_order(numbered, ran, src, t_s)  # refuses a log without block numbers
-    mv = sample_moves(log, ran)
+    numbered = numbered_moves(log, ran, line)
+    check_block_numbers(numbered, src)
+    mv = _forward_filled(numbered)
     # the path with its rapids: a feed sample still on the line of the rapid before it (LinuxCNC starts a
     # plunge while the axes lag behind the rapid) is in the air, not off the cut (simulate does the same)
     path = PathGeometry.from_moves(original.moves, include_rapids=True)

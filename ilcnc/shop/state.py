@@ -169,6 +169,11 @@ class LearnState:
         """Hash of the profile an iteration was made with."""
         return entry.profile_sha256 or self.profile_sha256
 
+    def profile_record(self, profile_sha256: str) -> str | None:
+        """What an iteration made with this profile records as :attr:`IterationEntry.profile_sha256`: None for the
+        profile that started the run, else its hash (the reverse of :meth:`profile_of`)."""
+        return None if profile_sha256 == self.profile_sha256 else profile_sha256
+
     @property
     def current_profile_sha256(self) -> str:
         """Hash of the profile the run goes on with: its last iteration's."""
@@ -222,13 +227,18 @@ class LearnState:
         self.file_sha256[name] = sha
         return sha
 
-    def read_array(self, name: str, ncols: int) -> NDArray[np.float64]:
+    def _read_checked(self, name: str) -> bytes:
+        """A CSV of the state, refused when its recorded hash (``file_sha256``) no longer matches."""
         p = self.file(name)
         raw = read_bytes(p)
         want = self.file_sha256.get(name)
         if want is not None and sha256_bytes(raw) != want:
             raise StateError(p, None, "changed since ilcnc wrote it (hash mismatch): the learning state is damaged")
-        text = raw.decode("utf-8", errors="replace")
+        return raw
+
+    def read_array(self, name: str, ncols: int) -> NDArray[np.float64]:
+        p = self.file(name)
+        text = self._read_checked(name).decode("utf-8", errors="replace")
         try:
             arr = np.loadtxt(text.splitlines()[1:], delimiter=",", ndmin=2)
         except ValueError as exc:
@@ -330,12 +340,12 @@ class LearnState:
         for e in self.iterations:
             self.read_program_bytes(e)
             for name in (e.corrections, e.errors):
-                if name is not None and not self.file(name).is_file():
+                if name is None:
+                    continue
+                if not self.file(name).is_file():
                     raise StateError(self.file(name), None, "missing: the learning state is damaged")
-                want = self.file_sha256.get(name) if name is not None else None
-                if want is not None and sha256_bytes(read_bytes(self.file(name))) != want:
-                    raise StateError(self.file(name), None, "changed since ilcnc wrote it (hash mismatch): the learning"
-                                     " state is damaged")
+                if name in self.file_sha256:
+                    self._read_checked(name)
 
     @classmethod
     def exists(cls, directory: str | Path) -> bool:

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.errors import InputError, LogError, StateError, UsageError
-from ilcnc.fileio import read_bytes, remove_stale_temporaries, same_file, write_atomic
+from ilcnc.fileio import inside, read_bytes, remove_stale_temporaries, same_file, write_atomic
 from ilcnc.learning.guard import LearningGuard
 from ilcnc.learning.learner import (
     Clip,
@@ -317,9 +317,8 @@ def _record_writer(state: LearnState, program: Program, *, profile_sha: str, fir
         name = f"iter-{it:03d}{suffix}"
         raw = rec.text.encode("latin-1")
         sha = state.write_file(name, raw)
-        entry = IterationEntry(it, name, sha, state.write_corrections(it, rec.corrections_mm))
-        if profile_sha != state.profile_sha256:
-            entry.profile_sha256 = profile_sha
+        entry = IterationEntry(it, name, sha, state.write_corrections(it, rec.corrections_mm),
+                               profile_sha256=state.profile_record(profile_sha))
         state.iterations.append(entry)
         sig = rec.signal
         if sig is not None:
@@ -360,7 +359,7 @@ def _replacing(state_dir: Path, req: LearnRequest, data: bytes) -> Iterator[None
     """``--force``: set the earlier run's state aside, drop it once the new run is written, restore it on failure
     (``data``: the bytes of ``req.program``)."""
     for p in (req.program, req.profile):
-        if _inside(p, state_dir):
+        if inside(p, state_dir):
             raise StateError(p, None, f"is inside the state {state_dir} that --force would replace: copy it out first")
     try:
         earlier = LearnState.load(state_dir)
@@ -678,8 +677,7 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     entry.errors = state.write_errors(entry.iteration, meas.signal.e_mm, meas.signal.t_s, meas.signal.valid)
     entry.stats = meas.stats.to_json()
     entry.measured_from = {"kind": meas.kind, "path": str(source), "sha256": src_sha}
-    if profile_sha != state.profile_of(entry):  # measured under the profile of a --new-profile continuation
-        entry.profile_sha256 = profile_sha
+    entry.profile_sha256 = state.profile_record(profile_sha)  # measured under this profile (--new-profile: another)
     if log_fp is not None:
         entry.measured_from["samples_sha256"] = log_fp
     if meas.air_stats is not None:
@@ -756,7 +754,7 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     sha = state.write_file(name, text.encode("latin-1"))
     new_entry = IterationEntry(nxt, name, sha, state.write_corrections(nxt, u_new), gain_scale=state.gain_scale,
                                clipped=len(clips), output=str(req.out),
-                               profile_sha256=None if profile_sha == state.profile_sha256 else profile_sha)
+                               profile_sha256=state.profile_record(profile_sha))
     state.iterations.append(new_entry)
     state.save()  # the state names the output before it exists: a kill between leaves no output it does not list
     out = _write_output(req, text, original, state.part["sha256"], nxt)
@@ -828,12 +826,6 @@ def _report_measured(req: LearnRequest, state: LearnState, meas: Any, clips: lis
 # ---------------------------------------------------------------------------------------------
 
 
-def _inside(path: Path, folder: Path) -> bool:
-    """``path`` is ``folder`` or lies under it (after resolving links)."""
-    p, f = path.resolve(), folder.resolve()
-    return p == f or f in p.parents
-
-
 def _check_output_paths(req: LearnRequest) -> None:
     """Refuse, before any work, outputs that would write over an input or into the learning state (issue 25
     items 6 and 7): ``--out`` is no input and not inside ``--state``; ``--report DIR`` holds no input."""
@@ -842,7 +834,7 @@ def _check_output_paths(req: LearnRequest) -> None:
     for what, p in inputs:
         if same_file(req.out, p):
             raise InputError(req.out, None, f"is {what} of this run: choose another output path (--out)")
-    if req.state is not None and _inside(req.out, req.state):
+    if req.state is not None and inside(req.out, req.state):
         raise InputError(req.out, None, f"is inside the learning state {req.state}, which ilcnc keeps intact: choose"
                          " an output path outside it (--out)")
     if req.report is not None:
@@ -852,7 +844,7 @@ def _check_output_paths(req: LearnRequest) -> None:
             if p.exists() and p.resolve().parent == req.report.resolve() and is_report_file(p.name):
                 raise InputError(req.report, None, f"holds {what} as {p.name}, a file the report writes: choose another"
                                  " folder for --report")
-        if req.state is not None and _inside(req.report, req.state):
+        if req.state is not None and inside(req.report, req.state):
             raise InputError(req.report, None, f"is inside the learning state {req.state}: choose a folder outside it")
 
 
@@ -888,13 +880,13 @@ def _learn_part(req: LearnRequest, progress: Callable[[int, int, str], None] | N
         raise InputError(None, None, "--force starts a new virtual run; a step from --log/--points continues its --state")
     fresh = req.force or req.state is None or not LearnState.exists(req.state)
     state = None if fresh else LearnState.load(req.state)
-    if state is not None and profile_sha != state.current_profile_sha256 and not req.new_profile:
-        # continuing means the same machine model and law: figures made with another are not comparable
-        raise StateError(req.profile, None, f"is not the profile this learning run goes on with (sha256"
-                         f" {state.current_profile_sha256[:16]}, this file {profile_sha[:16]}): continue with that"
-                         " profile, or give --new-profile to go on from the run's best iteration under this one (a"
-                         " new branch of its history; the guard compares iterations of one profile only)")
     if state is not None and profile_sha != state.current_profile_sha256:
+        if not req.new_profile:
+            # continuing means the same machine model and law: figures made with another are not comparable
+            raise StateError(req.profile, None, f"is not the profile this learning run goes on with (sha256"
+                             f" {state.current_profile_sha256[:16]}, this file {profile_sha[:16]}): continue with that"
+                             " profile, or give --new-profile to go on from the run's best iteration under this one"
+                             " (a new branch of its history; the guard compares iterations of one profile only)")
         # a new branch: the guard's halving and its stop were judgements of the other profile's law
         state.gain_scale = 1.0
         if state.pending() is None:

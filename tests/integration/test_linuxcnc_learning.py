@@ -98,16 +98,22 @@ def test_compensated_programs_differ_only_in_g01_coordinates(loop) -> None:
             assert a.lstrip().upper().startswith("G1") and _COORD.sub("", a) == _COORD.sub("", b), (a, b)
 
 
-def test_a_log_cut_off_mid_run_is_refused_and_the_state_kept(loop, tmp_path) -> None:
-    # the state as it waited for the log of iteration 1 (copied then: the loop's own state may have stopped since)
+def _step_on_open_state(loop, tmp_path, log):  # type: ignore[no-untyped-def]
+    """``learn --log LOG`` on a copy of the state as it waited for the log of iteration 1 (copied then: the loop's
+    own state may have stopped since). Returns the copy, its state.json before, and the CLI result."""
     state = tmp_path / "state"
     shutil.copytree(loop["open_state"], state)
     before = (state / "state.json").read_bytes()
+    res = runner.invoke(app, ["learn", str(loop["part"]), "--profile", str(PROFILE), "--log", str(log), "--state",
+                              str(state), "--out", str(tmp_path / "x.ngc")])
+    return state, before, res
+
+
+def test_a_log_cut_off_mid_run_is_refused_and_the_state_kept(loop, tmp_path) -> None:
     full = loop["logs"][1].read_text().splitlines()
     cut = tmp_path / "cut.csv"
     cut.write_text("\n".join(full[: len(full) // 3]) + "\n")
-    res = runner.invoke(app, ["learn", str(loop["part"]), "--profile", str(PROFILE), "--log", str(cut), "--state",
-                              str(state), "--out", str(tmp_path / "x.ngc")])
+    state, before, res = _step_on_open_state(loop, tmp_path, cut)
     assert res.exit_code == 1 and res.output.startswith("error: ") and len(res.output.strip().splitlines()) == 1
     assert "cut.csv" in res.output
     assert (state / "state.json").read_bytes() == before
@@ -178,14 +184,10 @@ def test_measured_error_is_the_distance_to_the_path(loop, compass_head, case, ru
 def test_the_log_of_the_program_before_is_refused_on_linuxcnc(loop, tmp_path) -> None:
     # issue 25 item 2 on LinuxCNC: the state waits for the log of iteration 1; the original's log, one sample short
     # (other bytes, other samples: neither hash knows it), fits the original's path, not iteration 1's
-    state = tmp_path / "state"
-    shutil.copytree(loop["open_state"], state)
-    before = (state / "state.json").read_bytes()
     rows = loop["logs"][0].read_text().splitlines()
     old = tmp_path / "old.csv"
     old.write_text("\n".join(rows[:-1]) + "\n")
-    res = runner.invoke(app, ["learn", str(loop["part"]), "--profile", str(PROFILE), "--log", str(old), "--state",
-                              str(state), "--out", str(tmp_path / "x.ngc")])
+    state, before, res = _step_on_open_state(loop, tmp_path, old)
     assert res.exit_code == 1 and len(res.output.strip().splitlines()) == 1, res.output
     assert "fit the program of iteration 0 (iter-000.ngc) better than iter-001.ngc" in res.output, res.output
     assert (state / "state.json").read_bytes() == before and not (tmp_path / "x.ngc").exists()
