@@ -10,6 +10,7 @@ is not there.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -99,3 +100,21 @@ def samples_dir() -> Path:
     if not SAMPLES.is_dir():
         pytest.fail(f"samples/third_party not found at {SAMPLES}")
     return SAMPLES
+
+
+@pytest.hookimpl(optionalhook=True)  # a hook of pytest-xdist: ignored where it is not installed
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    """Under ``pytest -n N --dist loadscope`` (.ci/run) every LinuxCNC integration test runs in one worker.
+
+    One machine runs one LinuxCNC at a time: tests in two workers would find the run lock taken by the other
+    worker and skip. Every other test is its own scope, so they spread over the workers one by one. (xdist's
+    ``xdist_group`` mark does the same, but its ``loadgroup`` renames node ids through an attribute pytest 9 no
+    longer reads, so the groups are silently lost.)
+    """
+    from xdist.scheduler import LoadScopeScheduling
+
+    class _LinuxCNCInOneWorker(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return "linuxcnc" if nodeid.startswith("tests/integration/") else nodeid
+
+    return _LinuxCNCInOneWorker(config, log)
