@@ -9,6 +9,7 @@ cycle time change, without and with ``--refine`` (the same run, so the ratios co
     python bench/refine.py --arcs [PROG ...]   # refine with learning.refine.arcs: on (a profile copy)
     python bench/refine.py --gamma 1 [PROG ...]  # refine with learning.gains.gamma: 1 (a profile copy)
     python bench/refine.py --feed [PROG ...]   # refine with learning.refine.feed: on (a profile copy)
+    python bench/refine.py --arc-radial 0.01 [PROG ...]  # learning.arc_start_radial_mm: 0.01 (plain and refine)
 """
 
 from __future__ import annotations
@@ -36,6 +37,11 @@ def main(argv: list[str]) -> None:
     arcs = "--arcs" in argv
     feed = "--feed" in argv
     argv = [a for a in argv if a not in ("--arcs", "--feed")]
+    radial = None
+    if "--arc-radial" in argv:
+        i = argv.index("--arc-radial")
+        radial = float(argv[i + 1])
+        argv = argv[:i] + argv[i + 2:]
     gamma = None
     if "--gamma" in argv:
         i = argv.index("--gamma")
@@ -47,7 +53,7 @@ def main(argv: list[str]) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         profile = PROFILE
         variant = arcs or feed or gamma is not None
-        if variant:
+        if variant or radial is not None:
             import yaml
 
             data = yaml.safe_load(PROFILE.read_text())
@@ -57,6 +63,8 @@ def main(argv: list[str]) -> None:
                 data["learning"].setdefault("refine", {})["feed"] = "on"
             if gamma is not None:
                 data["learning"]["gains"] = {"gamma": gamma}
+            if radial is not None:
+                data["learning"]["arc_start_radial_mm"] = radial
             profile = Path(tmp) / "example-mill-variant.yaml"
             profile.write_text(yaml.safe_dump(data))
         for prog in programs:
@@ -72,6 +80,8 @@ def main(argv: list[str]) -> None:
                 floor = " (at the floor)" if a["max"] * 1e3 <= 2 * resolution_um else ""
                 label = ("arcs " if arcs else "") + ("feed " if feed else "") + (
                     f"g={gamma:g}" if gamma is not None else "") or mode
+                if radial is not None:
+                    label = f"{label} r{radial:g}"
                 slowed = len((run.get("feed") or {}).get("slowed_moves", []))
                 print(f"{prog.name[:28]:28s} {label:8s} {b['max'] * 1e3:7.2f} -> {a['max'] * 1e3:6.2f}"
                       f" {a['max'] / b['max'] - 1:+6.0%} {b['rms'] * 1e3:6.2f} -> {a['rms'] * 1e3:5.2f}"

@@ -166,6 +166,42 @@ def test_arc_start_stays_on_its_circle(tmp_path) -> None:
     assert v[0, 0] == pytest.approx(0.02, rel=1e-3) and v[0, 2] == 0.0
 
 
+def test_arc_start_moves_off_its_circle_only_as_far_as_the_profile_allows(tmp_path) -> None:
+    """``learning.arc_start_radial_mm``: the radial part is kept up to the limit from the end's radius (the arc
+    becomes a spiral), the tangential part moves along the circle as before, the out-of-plane part is dropped."""
+    prog = _program(tmp_path, "G21 G90 G17\nG0 X0 Y0\nG1 X10 Y0 F600\nG3 X20 Y10 I0 J10\nG1 X20 Y20\n")
+    sel, geo = arc_start_constraint(prog)
+    geo["radial_mm"][:] = 0.01
+    u = np.zeros((prog.n_commands, 3))
+    u[0] = [0.0, 0.004, 0.01]  # 4 µm inwards (+y points to the centre at (10, 10)), within the limit
+    p = prog.moves.start_mm[2] + keep_arcs_valid(u, sel, geo)[0]
+    assert np.hypot(p[0] - 10.0, p[1] - 10.0) == pytest.approx(10.0 - 0.004, abs=1e-12) and p[2] == 0.0
+    u[0] = [0.0, -0.05, 0.0]  # 50 µm outwards: 10 µm kept
+    p = prog.moves.start_mm[2] + keep_arcs_valid(u, sel, geo)[0]
+    assert np.hypot(p[0] - 10.0, p[1] - 10.0) == pytest.approx(10.0 + 0.01, abs=1e-12)
+    u[0] = [0.02, 0.0, 0.0]  # along the tangent: on the circle, as with no radial freedom
+    v = keep_arcs_valid(u, sel, geo)[0]
+    p = prog.moves.start_mm[2] + v
+    assert np.hypot(p[0] - 10.0, p[1] - 10.0) == pytest.approx(10.0, abs=1e-12) and v[0] == pytest.approx(0.02, rel=1e-3)
+
+
+def test_arc_start_radial_limit_stays_inside_what_the_control_accepts(tmp_path) -> None:
+    """The profile allows up to 0.028 mm; the learner keeps the corrected point, rounded to the resolution,
+    inside LinuxCNC's 0.02·√2 mm (the rewriter refuses beyond it)."""
+    from dataclasses import replace
+
+    from ilcnc.learning import Learner
+    from ilcnc.profile import default_profile
+
+    prog = _program(tmp_path, "G21 G90 G17\nG0 X0 Y0\nG1 X10 Y0 F600\nG3 X20 Y10 I0 J10\nG1 X20 Y20\n")
+    base = default_profile()
+    for wanted, res, got in ((0.0, 0.001, 0.0), (0.01, 0.001, 0.01), (0.028, 0.001, 0.02 * 2 ** 0.5 - 0.001),
+                             (0.028, 0.005, 0.02 * 2 ** 0.5 - 0.005)):
+        prof = replace(base, learning=replace(base.learning, arc_start_radial_mm=wanted),
+                       machine=replace(base.machine, resolution_mm=res))
+        assert Learner.for_program(prog, prof).arc_geo["radial_mm"].tolist() == pytest.approx([got], abs=1e-15)
+
+
 def test_moves_are_never_turned_around() -> None:
     vec = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.01, 0.0, 0.0]])
     prev = np.array([-1, 0, 1])

@@ -98,6 +98,26 @@ def test_arc_is_interpolated_as_arc_within_tolerance() -> None:
     assert ang[-1] - ang[0] == pytest.approx(-2 * np.pi, abs=1e-3)
 
 
+def test_an_arc_whose_end_misses_the_circle_is_a_spiral_to_its_end() -> None:
+    """End radius 25.02 mm, start radius 25 mm (LinuxCNC accepts up to 0.028 mm and runs a spiral whose radius
+    changes in proportion to the angle): the reference reaches the end point without a jump and its radius
+    moves from 25 to 25.02 mm with the angle."""
+    prog = _prog("G21 G90 G17\nG0 X25 Y0 Z0\nG3 X0 Y25.02 I-25 J0 F600\nG1 X-10\nM2\n")
+    ref = plan_moves(prog.moves, _limits(), period_s=0.001, mode="constant_feed")
+    on_arc = ref.move == 1
+    p = ref.pos_mm[on_arc]
+    r = np.hypot(p[:, 0], p[:, 1])
+    ang = np.arctan2(p[:, 1], p[:, 0])
+    # constant feed: the ideal interpolator itself, sampled on the spiral
+    assert np.max(np.abs(r - (25.0 + 0.02 * ang / (np.pi / 2)))) <= 1e-9
+    feed = np.flatnonzero(ref.move >= 1)
+    step = np.linalg.norm(ref.pos_mm[feed] - ref.pos_mm[feed - 1], axis=1)
+    # 600 mm/min, no jump at the arc's end: the interpolator advances the angle by the start circle's length, so
+    # on the spiral a step is at most r1 / r0 = 25.02 / 25 as long (plus the radial rate, 1e-7 of it)
+    assert step.max() <= 10.0 * 0.001 * (25.02 / 25.0) * (1 + 1e-6)
+    assert np.linalg.norm(p[-1] - [0.0, 25.02, 0.0]) <= step.max()  # the last sample on the arc, one step short
+
+
 def test_constant_feed_is_the_ideal_interpolator() -> None:
     prog = _prog("G21 G90\nG0 X0 Y0 Z0\nG1 X10 F150\nY10\nM2\n")
     ref = plan_moves(prog.moves, _limits(), period_s=0.001, mode="constant_feed")
@@ -161,6 +181,8 @@ def _assert_same_reference(a, b) -> None:
     # path control per move, and an inverse-time stand-still
     "G21 G90\nG0 X0 Y0 Z0\nG61\nG1 X5 F3000\nY1\nG61.1 X6\nX7\nG64\nY0\nX0.5\nG64 P0.002 Y0.3\nX3\nG2 X5 Y0.3 R1\n"
     "G93 G1 X5 F3000\nX5.5 F6000\nY3 F60000\nM2\n",
+    # a spiral: the end misses the circle through the start by 20 µm
+    "G21 G90 G17\nG0 X25 Y0 Z0\nG1 X25.01 F3000\nG3 X0 Y25.02 I-25.01 J0\nG1 X-10\nM2\n",
 ])
 @pytest.mark.parametrize("mode", ["seven_phase", "cubic", "constant_feed"])
 @pytest.mark.parametrize("tol", [0.0, 0.01, 0.5])

@@ -64,6 +64,7 @@ from ilcnc.program.model import (
     MOVE_ARC_CW,
     MOVE_RAPID,
     Program,
+    center_arc_tolerance_mm,
 )
 from ilcnc.vcnc.command_error import CommandSignal, error_kind, measurement_gate_mm, signal_of_simulation
 
@@ -206,18 +207,24 @@ def arc_start_constraint(program: Program) -> tuple[NDArray[np.int64], dict[str,
     direction = np.where(mv.kind[arc] == MOVE_ARC_CCW, 1.0, -1.0)
     sweep = np.mod(direction * (a1 - a0), 2 * np.pi)
     sweep = np.where(sweep < 1e-12, 2 * np.pi, sweep) + 2 * np.pi * np.maximum(mv.turns[arc].astype(np.float64) - 1, 0)
+    r1 = np.hypot(end[rows, axes[:, 0]] - center[rows, axes[:, 0]], end[rows, axes[:, 1]] - center[rows, axes[:, 1]])
     return sel, {"center": center, "start": start, "axes": axes, "direction": direction,
-                 "length_mm": r0 * sweep, "radius_mm": r0}
+                 "length_mm": r0 * sweep, "radius_mm": r0, "end_radius_mm": r1,
+                 "radial_mm": np.zeros(arc.size)}
 
 
 def keep_arcs_valid(u: NDArray[np.float64], sel: NDArray[np.int64], geo: dict[str, NDArray[np.float64]],
                     *, share: float = 0.1) -> NDArray[np.float64]:
-    """Restrict the corrections of arc-starting commands to moves along their arc's circle.
+    """Restrict the corrections of arc-starting commands to what keeps their arc one the control runs.
 
     The in-plane part of the correction along the arc's tangent is kept, at
-    most ``share`` of the arc's length, and the corrected point is put back
-    on the circle (same centre, same radius: the arc stays a true arc);
-    radial and out-of-plane parts are dropped.
+    most ``share`` of the arc's length, and the point is moved along the
+    circle (same centre). The radial part is kept within ``geo["radial_mm"]``
+    of the end's radius (0: none, the arc stays a true arc; more: the arc
+    becomes a spiral whose start and end radii differ by at most that much,
+    which controls run as a spiral, see
+    :func:`~ilcnc.program.model.arc_off_circle`); the out-of-plane part is
+    dropped.
     """
     if sel.size == 0:
         return u
@@ -236,7 +243,12 @@ def keep_arcs_valid(u: NDArray[np.float64], sel: NDArray[np.int64], geo: dict[st
     along = np.clip(along, -lim, lim)
     with np.errstate(invalid="ignore", divide="ignore"):
         dang = np.where(r > 0, along / r, 0.0) * geo["direction"]
-    n1, n2 = c1 + r * np.cos(ang + dang), c2 + r * np.sin(ang + dang)
+    radial = uu[rows, ax[:, 0]] * np.cos(ang) + uu[rows, ax[:, 1]] * np.sin(ang)
+    lim_r = geo.get("radial_mm", np.zeros(sel.size))
+    r1 = geo.get("end_radius_mm", r)
+    rn = np.clip(r + radial, r1 - lim_r, r1 + lim_r)
+    rn = np.where(lim_r > 0, rn, r)
+    n1, n2 = c1 + rn * np.cos(ang + dang), c2 + rn * np.sin(ang + dang)
     new = np.zeros_like(uu)
     new[rows, ax[:, 0]] = n1 - p1
     new[rows, ax[:, 1]] = n2 - p2
@@ -513,6 +525,10 @@ class Learner:
         shaper = UpdateShaper(cut_runs(program), correctable, sec.lead_commands, sec.q_filter_hz,
                               profile.machine.servo_period_s)
         sel, geo = arc_start_constraint(program)
+        # the corrected point is then rounded to the resolution (at most resolution / sqrt 2 away): stay that far
+        # inside the control's limit, which the rewriter checks
+        geo["radial_mm"][:] = max(0.0, min(sec.arc_start_radial_mm,
+                                           center_arc_tolerance_mm(1.0) - profile.machine.resolution_mm))
         cm = program.command_moves
         vec = program.moves.end_mm[cm] - program.moves.start_mm[cm]
         program.resolve_spans()

@@ -634,6 +634,17 @@ SPECS: tuple[Spec, ...] = (
         default=0.5,
     ),
     _f(
+        "learning.arc_start_radial_mm",
+        "How far the end point before an arc may move off the arc's circle: the arc, whose centre and end stay,"
+        " becomes a spiral whose start radius differs from its end radius by at most this (LinuxCNC runs such"
+        " spirals and accepts up to 0.02·√2 = 0.0283 mm; other controls have their own limit: set yours). 0: the point"
+        " moves only along the circle (docs/learning.md).",
+        "mm",
+        0,
+        0.028,
+        default=0.0,
+    ),
+    _f(
         "learning.stop_tolerance_mm",
         "Stop when the largest contour error is below this.",
         "mm",

@@ -453,6 +453,9 @@ class LearningSection:
         Largest number of iterations.
     correction_bound_mm : float
         Largest correction per coordinate, mm.
+    arc_start_radial_mm : float
+        How far an arc's start (the end point of the command before it) may move off the arc's circle, mm
+        (the arc becomes a spiral); 0: along the circle only.
     stop_tolerance_mm : float
         Stop tolerance on the largest contour error, mm.
     q_filter_hz : float or None
@@ -473,6 +476,7 @@ class LearningSection:
     gains: dict[str, Any] = field(default_factory=lambda: {"gamma": default_of("learning.gains.gamma", "p")})
     iterations: int = default_of("learning.iterations")
     correction_bound_mm: float = default_of("learning.correction_bound_mm")
+    arc_start_radial_mm: float = default_of("learning.arc_start_radial_mm")
     stop_tolerance_mm: float = default_of("learning.stop_tolerance_mm")
     q_filter_hz: float | None = default_of("learning.q_filter_hz")
     lead_commands: int = default_of("learning.lead_commands")
@@ -820,6 +824,8 @@ class MachineProfile:
         }
         if lr.model_steps:
             learning["model_steps"] = lr.model_steps
+        if lr.arc_start_radial_mm:
+            learning["arc_start_radial_mm"] = lr.arc_start_radial_mm
         if lr.air_moves != "keep":
             learning["air_moves"] = lr.air_moves
         if lr.refine != RefineSection():

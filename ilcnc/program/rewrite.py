@@ -400,7 +400,8 @@ def _rewrite_center(program: Program, i: int, start_real: NDArray[np.float64], k
                     edits: list[Edit]) -> None:
     """Keep an arc's centre where it was when its start moved (incremental centre words); refuse a start moved
     off the circle by more than a control accepts (LinuxCNC's limit, which both readers apply: 0.028 mm and
-    0.1 % of the radius). The learner keeps arc starts on their circle; a corrections file may not."""
+    0.1 % of the radius). The learner keeps arc starts on their circle, or within ``learning.arc_start_radial_mm``
+    of it (a spiral, inside that limit); a corrections file may not."""
     mv = program.moves
     text = program.text
     unit = float(mv.unit_mm[i])

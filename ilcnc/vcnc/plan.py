@@ -732,7 +732,11 @@ def _position_on_moves(moves: MoveTable, mv: NDArray[np.int64], frac: NDArray[np
             m_sel = mv[sel]
             c = moves.center_mm[m_sel]
             st = s[sel]
+            en = e[sel]
             r = np.hypot(st[:, a1] - c[:, a1], st[:, a2] - c[:, a2])
+            # a spiral where the end misses the circle through the start (within the control's tolerance):
+            # the radius changes in proportion to the angle, as LinuxCNC runs it
+            r = r + (np.hypot(en[:, a1] - c[:, a1], en[:, a2] - c[:, a2]) - r) * frac[sel]
             t0 = np.arctan2(st[:, a2] - c[:, a2], st[:, a1] - c[:, a1])
             sign = np.where(moves.kind[m_sel] == MOVE_ARC_CW, -1.0, 1.0)
             ang = t0 + sign * sweep_all[m_sel] * frac[sel]

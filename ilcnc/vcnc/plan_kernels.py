@@ -29,12 +29,18 @@ BLOCK_SAMPLES = 1024
 
 def arc_table(moves: MoveTable, idx: NDArray[np.int64], sweep_all: NDArray[np.float64]):
     """Per group move: is an arc, its plane axes, centre, radius, start angle and signed sweep
-    (computed as :func:`_position_on_moves` does per sample)."""
+    (computed as :func:`_position_on_moves` does per sample).
+
+    The radius is (k, 2): the start's radius and the end's minus it. An arc whose end misses the circle
+    through its start (within the control's tolerance, :func:`~ilcnc.program.model.arc_off_circle`) is a
+    spiral whose radius changes in proportion to the angle, as LinuxCNC runs it, and so ends at its end point.
+    """
     k = idx.shape[0]
     garc = np.zeros(k, dtype=np.bool_)
     ga1 = np.zeros(k, dtype=np.int64)
     ga2 = np.ones(k, dtype=np.int64)
-    gc1, gc2, gr, gt0, gssw = (np.zeros(k) for _ in range(5))
+    gc1, gc2, gt0, gssw = (np.zeros(k) for _ in range(4))
+    gr = np.zeros((k, 2))
     is_arc = moves.kind[idx] >= MOVE_ARC_CW
     if is_arc.any():
         for plane, (a1, a2, _lin) in PLANE_AXES.items():
@@ -47,7 +53,9 @@ def arc_table(moves: MoveTable, idx: NDArray[np.int64], sweep_all: NDArray[np.fl
             garc[sel] = True
             ga1[sel], ga2[sel] = a1, a2
             gc1[sel], gc2[sel] = c[:, a1], c[:, a2]
-            gr[sel] = np.hypot(st[:, a1] - c[:, a1], st[:, a2] - c[:, a2])
+            en = moves.end_mm[m_sel]
+            gr[sel, 0] = np.hypot(st[:, a1] - c[:, a1], st[:, a2] - c[:, a2])
+            gr[sel, 1] = np.hypot(en[:, a1] - c[:, a1], en[:, a2] - c[:, a2]) - gr[sel, 0]
             gt0[sel] = np.arctan2(st[:, a2] - c[:, a2], st[:, a1] - c[:, a1])
             gssw[sel] = np.where(moves.kind[m_sel] == MOVE_ARC_CW, -1.0, 1.0) * sweep_all[m_sel]
     return garc, ga1, ga2, gc1, gc2, gr, gt0, gssw
@@ -81,8 +89,9 @@ def _ideal_block(k0, k1, i, period, total, last, t_end, dur, pspd, owner, offs, 
         x2 = gs[o, 2] + (ge[o, 2] - gs[o, 2]) * frac
         if garc[o]:
             ang = gt0[o] + gssw[o] * frac
-            x0, x1, x2 = set_component(x0, x1, x2, ga1[o], gc1[o] + gr[o] * math.cos(ang))
-            x0, x1, x2 = set_component(x0, x1, x2, ga2[o], gc2[o] + gr[o] * math.sin(ang))
+            rad = gr[o, 0] + gr[o, 1] * frac
+            x0, x1, x2 = set_component(x0, x1, x2, ga1[o], gc1[o] + rad * math.cos(ang))
+            x0, x1, x2 = set_component(x0, x1, x2, ga2[o], gc2[o] + rad * math.sin(ang))
         counts[o] += 1
         j = k - k0
         blk[j, 0] = x0 - px
