@@ -85,6 +85,10 @@ EXPECTED: dict[str, Any] = {
     "002.cli.max": [0.006438, 0.005358, 0.004752, 0.004379, 0.004184, 0.004212, 0.004227, 0.004222],
     "002.cli.kept": [True, True, True, True, True, True, False, False],
     "002.cli.status": "diverged",
+    "002.points.norm": [0.011078, 0.0055349, 0.002762, 0.0013761, 0.00068917, 0.00034593, 0.00017099, 0.000088264,
+                        0.000046748, 0.000030824, 0.000030824],
+    "002.points.chord_rms": [0.0026591, 0.0013569, 0.00071056, 0.00039709, 0.00025332, 0.0001933, 0.00016929,
+                             0.00016044, 0.00015662, 0.00015518, 0.00015518],
     "002.cli.ek_rms": [0.0024170, 0.0013561, 0.00077403, 0.00045196, 0.00027692, 0.00018099, 0.00013214,
                        0.00015462],
 }
@@ -200,7 +204,60 @@ def seed002() -> dict[str, Any]:
     return got
 
 
-SEEDS: dict[str, Callable[[], dict[str, Any]]] = {"000": seed000, "002": seed002, "003": seed003}
+def _probe_points(ran: Path, original: Any, geometry: Any, out: Path) -> tuple[Path, float]:
+    """A virtual CMM: the part cut by ``ran`` measured at the original command points (measured − nominal, mm)."""
+    commanded = read_program(ran).command_end_mm
+    dev = commanded + geometry.error_mm(commanded) - original.command_end_mm
+    out.write_text("k,dx,dy,dz\n" + "".join(f"{k},{d[0]:.7f},{d[1]:.7f},{d[2]:.7f}\n" for k, d in enumerate(dev)))
+    return out, float(np.linalg.norm(dev))
+
+
+def _chord_rms_mm(ran: Path, original: Any, geometry: Any) -> float:
+    """RMS contour error between the command points: every chord that ran, sampled every 0.1 mm, moved by the
+    volumetric error, against the original polygon (as tests/test_machine_errors.py measures it)."""
+    from ilcnc.contour.path import PathGeometry
+    from ilcnc.contour.search import contour_error
+
+    mv = read_program(ran).moves
+    pts, hint = [], []
+    for i in np.flatnonzero(mv.command >= 0):
+        a, b = mv.start_mm[i], mv.end_mm[i]
+        n = max(int(np.linalg.norm(b - a) / 0.1), 1)
+        pts.append(a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a))
+        hint.append(np.full(n + 1, i))
+    q = np.vstack(pts)
+    err = contour_error(PathGeometry.from_moves(original.moves), q + geometry.error_mm(q), np.concatenate(hint))
+    return float(np.sqrt(np.mean(err.dist_mm**2)))
+
+
+def seed002_points() -> dict[str, Any]:
+    """The shop loop of seed 002: cut, probe the 11 points, ``ilcnc learn --points``, 10 times."""
+    from ilcnc.vcnc.volumetric import load_volumetric
+
+    prof = load_profile(S002_PROF)
+    geometry = load_volumetric(prof.resolve(prof.geometry.map))
+    original = read_program(S002_PROG)
+    norms, chords = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        ran = S002_PROG
+        for i in range(11):
+            pts, norm = _probe_points(ran, original, geometry, Path(tmp) / f"probe{i}.csv")
+            norms.append(norm)
+            chords.append(_chord_rms_mm(ran, original, geometry))
+            if i == 10:
+                break
+            out = Path(tmp) / f"circle.ilc{i + 1}.ngc"
+            j = _cli(["learn", str(ran), "--profile", str(S002_PROF), "--out", str(out), "--points", str(pts),
+                      "--state", str(Path(tmp) / "st")])
+            assert j["status"] == "stepped", j
+            ran = out
+    print(f"[002] per iteration: cut, probe, ilcnc learn PROG --profile {S002_PROF.relative_to(ROOT)} --points"
+          " probe.csv --state st --out next.ngc")
+    return {"002.points.norm": norms, "002.points.chord_rms": chords}
+
+
+SEEDS: dict[str, Callable[[], dict[str, Any]]] = {
+    "000": seed000, "002": lambda: {**seed002_points(), **seed002()}, "003": seed003}
 
 
 def _same(want: Any, have: Any) -> bool:
