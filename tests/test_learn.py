@@ -212,6 +212,18 @@ def test_moves_are_never_turned_around() -> None:
     assert np.dot(d, vec[2]) > 0 and np.linalg.norm(out[2] - out[1]) <= 0.5 * 0.01 + 1e-12
 
 
+def test_timed_moves_are_left_as_the_law_wants_them() -> None:
+    """A G93 block lasts 60/F whatever its length: the limiter neither shrinks nor holds it (issue 22)."""
+    vec = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.01, 0.0, 0.0]])
+    prev = np.array([-1, 0, 1])
+    u = np.array([[0.2, 0.0, 0.0], [0.0, 0.3, 0.0], [-0.1, 0.0, 0.0]])
+    out = keep_moves_forward(u, vec, prev, timed=np.array([False, True, True]))
+    assert np.array_equal(out, u)
+    # a speed-fed move after timed ones is still limited against its (unlimited) start
+    out = keep_moves_forward(u, vec, prev, timed=np.array([True, True, False]))
+    assert np.array_equal(out[:2], u[:2]) and np.linalg.norm(out[2] - out[1]) <= 0.5 * 0.01 + 1e-12
+
+
 def test_growth_within_the_resolution_is_not_growth() -> None:
     best = {"rms": 0.001, "max": 0.01}
     assert grew({"rms": 0.00102, "max": 0.01}, best, resolution_mm=0.0001) == []

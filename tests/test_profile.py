@@ -488,6 +488,11 @@ def test_section_not_a_mapping(tmp_path: Path) -> None:
         ("output:\n  decimals: 9\n", "decimals", "output.decimals: must be >= 0 and <= 8, got 9"),
         ("output:\n  dialect: siemens\n", "siemens", "output.dialect: must be one of auto, linuxcnc, fanuc, grbl,"),
         (
+            "controller:\n  type: cross_coupled\n  cross_coupling_gain: 1\n  theta: drawing\n",
+            "theta",
+            "controller.theta: must be one of reference, desired, got 'drawing'",
+        ),
+        (
             "controller:\n  type: cross_coupled\n",
             "type: cross",
             "controller.cross_coupling_gain: must be > 0 and <= 10000 when controller.type is cross_coupled, got 0",

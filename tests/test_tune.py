@@ -1,10 +1,6 @@
 """``ilcnc.learning.tune``: learning gains that provably converge (issue 7, part 2).
 
 Measured figures are in the comments next to the assertions (2-core development machine).
-
-Stand-in for a patch outside ilcnc/learning/tune.py (docs/papers.md): the seed 000 simulation check runs with
-``_paper_loop``, without ``keep_moves_forward`` (it limits each 2.5-µm block's correction to half its length,
-1.25 µm).
 """
 
 from __future__ import annotations
@@ -12,8 +8,6 @@ from __future__ import annotations
 import itertools
 import json
 import shutil
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -149,16 +143,6 @@ def test_no_convergent_gains_says_why(s004: MachineProfile) -> None:
     assert r.axes["x"].converges and r.lead_samples == 10
 
 
-@contextmanager
-def _paper_loop() -> Iterator[None]:
-    """Stand-in for the learn.py patch (module docstring; the contour search now reaches the lag itself)."""
-    import ilcnc.learning.learner as learn
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(learn, "keep_moves_forward", lambda u, vec_mm, prev_k, **kw: u)
-        yield
-
-
 def _corner_program(path: Path, leg_mm: float) -> Program:
     """Seed 000's corner X0 Y0 -> X leg -> Y leg at 150 mm/min resampled at 1 ms: one G01 per servo period.
 
@@ -185,8 +169,8 @@ def test_tuned_gains_converge_in_simulation(design, s000: MachineProfile, tmp_pa
     for ax in d["axes"].values():
         ax["max_velocity_mm_min"] = 1e6  # a corrected 1-ms block may be fast; do not stretch it
     prof = profile_from_dict(d)
-    with _paper_loop():
-        r = learn_virtual(prog, prof, iterations=3, guard=False, stop_on_stall=False)
+    # G93 blocks: the move limiter leaves them alone (it once capped each 2.5-µm block's change at 1.25 µm)
+    r = learn_virtual(prog, prof, iterations=3, guard=False, stop_on_stall=False)
     mx = [rec.stats["max"] for rec in r.iterations]
     # measured: 52.47 -> 1.073 -> 0.0091 -> 0.0041 µm (the last is the 1e-6 mm rounding of the written numbers)
     assert all(b < a for a, b in itertools.pairwise(mx)), mx

@@ -295,18 +295,28 @@ def start_corrections(program: Program) -> NDArray[np.int64]:
 
 
 def keep_moves_forward(u: NDArray[np.float64], vec_mm: NDArray[np.float64], prev_k: NDArray[np.int64],
-                       *, share: float = 0.5, passes: int = 4) -> NDArray[np.float64]:
+                       *, share: float = 0.5, passes: int = 4,
+                       timed: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """Limit corrections so that no G01 move is turned around or shrunk to nothing.
 
     The corrected move ``d + U_k - U_prev`` of a move ``d`` must not differ
     from ``d`` by more than ``share·|d|``; a zero-length move keeps zero
     length (its end point follows its start point). Corrections bigger than
     that are scaled down (a few passes settle the coupling between neighbours).
+
+    ``timed`` (K,) marks moves whose duration the program fixes (inverse-time
+    feed, ``G93``: ``60/F`` s whatever their length): they are left as the
+    law wants them. A speed feed (``G94``) makes a shrunk move shorter in time
+    and a turned one run backwards, which the limiter prevents; a timed move
+    keeps its instant, so its length protects nothing.
     """
     out = u.copy()
     length = np.linalg.norm(vec_mm, axis=1)
     has_prev = prev_k >= 0
     zero = length <= 1e-6
+    if timed is not None:
+        length = np.where(timed, np.inf, length)
+        zero &= ~timed
     for _ in range(passes):
         up = np.where(has_prev[:, None], out[np.maximum(prev_k, 0)], 0.0)
         out[zero] = up[zero]
@@ -424,7 +434,7 @@ class IterationRecord:
         if self.cycle_time_s is not None:
             out["cycle_time_s"] = self.cycle_time_s
         if self.shares:
-            out["error_shares_mm"] = self.shares
+            out["error_shares_mm"] = {k: dict(v) for k, v in self.shares.items()}  # ErrorFigures: as simulate's
         if self.feed_scale is not None:
             out["slowed_moves"] = int(np.count_nonzero(self.feed_scale < 1.0))
         return out
@@ -514,6 +524,7 @@ class Learner:
     vec_mm: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     free: NDArray[np.bool_] | None = None
     air_kept: NDArray[np.bool_] | None = None  # commands left as programmed because they are in the air
+    timed: NDArray[np.bool_] | None = None  # inverse-time (G93) commands: keep_moves_forward leaves them alone
 
     @classmethod
     def for_program(cls, program: Program, profile: MachineProfile, law: LearningLaw | None = None) -> Learner:
@@ -532,8 +543,9 @@ class Learner:
         cm = program.command_moves
         vec = program.moves.end_mm[cm] - program.moves.start_mm[cm]
         program.resolve_spans()
+        timed = np.isfinite(program.moves.block_time_s[cm])
         return cls(program, profile, law, shaper, sec.correction_bound_mm, sel, geo, start_corrections(program), vec,
-                   axes_free_to_move(program), air_kept)
+                   axes_free_to_move(program), air_kept, timed if timed.any() else None)
 
     def axis_mask(self) -> NDArray[np.float64]:
         return np.array([1.0 if a in self.profile.axes else 0.0 for a in AXES])
@@ -571,7 +583,7 @@ class Learner:
         clips += changed_coordinates(before, u_next, lines, CLIP_ARC)
         if self.prev_k.size:
             before = u_next
-            u_next = keep_moves_forward(u_next, self.vec_mm, self.prev_k)
+            u_next = keep_moves_forward(u_next, self.vec_mm, self.prev_k, timed=self.timed)
             u_next[~self.shaper.correctable] = 0.0
             if self.free is not None:
                 u_next[~self.free] = 0.0

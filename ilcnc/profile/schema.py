@@ -476,6 +476,16 @@ SPECS: tuple[Spec, ...] = (
         "The two axes the cross-coupled controller couples (both must be defined under axes).",
         default=("x", "y"),
     ),
+    _c(
+        "controller.theta",
+        "Where the cross-coupled controller takes the contour direction θ of C_x = sin θ, C_y = cos θ from."
+        " reference: the reference it runs (what a real control knows; a corrected program's reference carries the"
+        " corrections, which tilt the direction of short blocks); desired: the drawing, the original program's path"
+        " at the point nearest the reference (an offline tool knows it; seed 003's Fig. 2, where the CCC sees the"
+        " desired x_r, y_r and the learning input is added after it).",
+        ("reference", "desired"),
+        default="reference",
+    ),
     # planner ---------------------------------------------------------------
     _sec("planner", "Feed planning of the reference (virtual CNC)."),
     _c(

@@ -356,11 +356,14 @@ class ControllerSection:
         Cross-coupling gain C, dimensionless.
     coupled_axes : tuple of (str, str)
         The two coupled axes.
+    theta : str
+        ``"reference"`` or ``"desired"``: the path the controller takes the contour direction θ from.
     """
 
     type: str = default_of("controller.type")
     cross_coupling_gain: float = default_of("controller.cross_coupling_gain")
     coupled_axes: tuple[str, str] = default_of("controller.coupled_axes")
+    theta: str = default_of("controller.theta")
 
 
 @dataclass(frozen=True)
@@ -842,6 +845,7 @@ class MachineProfile:
                 "type": c.type,
                 "cross_coupling_gain": c.cross_coupling_gain,
                 "coupled_axes": list(c.coupled_axes),
+                **({"theta": c.theta} if c.theta != "reference" else {}),
             },
             "planner": {
                 "profile": p.profile,

@@ -20,7 +20,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'sle_time_domain_mm', 'tool_displacement_mm', 'tooth_force_n'
     ),
     'discrete': ('DELAY_SNAP', 'DiscreteModel', 'DriveModelError', 'FRICTION_SUBSTEP_S', 'STANDSTILL_MM', 'discrete_model'),
-    'drive_loop': ('path_normals',),
+    'drive_loop': ('direction_normals', 'path_normals'),
     'drives': (
         'DriveStream', 'HAVE_NUMBA', 'axis_response', 'cross_coupled_response', 'filter_deviation', 'loop_response',
         'simulate_drives'
@@ -39,7 +39,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     'run': ('RunFigures', 'run_virtual', 'simulate_figures'),
     'schedule': ('read_schedule', 'schedule_on_samples'),
-    'simulate': ('SimulationResult', 'simulate_program'),
+    'simulate': ('SimulationResult', 'desired_direction', 'simulate_program'),
     'stream': ('StreamedRun', 'simulate_streamed', 'stream_unsupported'),
     'volumetric': (
         'AxisErrorTables', 'ErrorModel', 'GridMap', 'OutsideMapError', 'SEED002_CIRCLE_CENTRE_MM',

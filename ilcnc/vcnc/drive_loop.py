@@ -16,7 +16,7 @@ import numpy as np
 from ilcnc._jit import HAVE_NUMBA, njit
 from ilcnc.vcnc.discrete import FRICTION_SUBSTEP_S, STANDSTILL_MM, DriveModelError, LoopPlant, discretise, zoh_discretize
 
-__all__ = ["path_normals"]
+__all__ = ["direction_normals", "path_normals"]
 
 
 # --------------------------------------------------------------------------
@@ -369,8 +369,29 @@ def path_normals(ref_2d: np.ndarray) -> np.ndarray:
     d[1:-1] = r[2:] - r[:-2]
     d[0] = r[1] - r[0]
     d[-1] = r[-1] - r[-2]
+    return direction_normals(d, STANDSTILL_MM)
+
+
+def direction_normals(dir_2d: np.ndarray, min_norm: float = 1e-6) -> np.ndarray:
+    """Unit normals ``n = (−sin θ, cos θ)`` of per-sample path directions.
+
+    Parameters
+    ----------
+    dir_2d : ndarray, shape (N, 2)
+        Direction of the path at each sample in the plane of the two coupled axes: any length (the in-plane part
+        of a unit tangent, a difference of positions in mm).
+    min_norm : float
+        A direction shorter than this is none (a stand-still, a move square to the plane): the
+        nearest earlier valid direction is held (before the first: the first one's; none at all: θ = 0).
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+    """
+    d = np.asarray(dir_2d, dtype=float)
+    npts = d.shape[0]
     norm = np.hypot(d[:, 0], d[:, 1])
-    valid = norm > STANDSTILL_MM
+    valid = norm > min_norm
     if not np.any(valid):
         return np.tile([0.0, 1.0], (npts, 1))
     idx = np.where(valid, np.arange(npts), -1)

@@ -150,7 +150,7 @@ from ilcnc.profile.sections import (
 )
 from ilcnc.units import AXIS_NAMES
 from ilcnc.vcnc.discrete import DiscreteModel, DriveModelError, discrete_model, loop_plant, pff_plant
-from ilcnc.vcnc.drive_loop import friction_column, path_normals, run_loop
+from ilcnc.vcnc.drive_loop import direction_normals, friction_column, path_normals, run_loop
 
 __all__ = [
     "HAVE_NUMBA",
@@ -482,7 +482,8 @@ def loop_response(drive: DriveModel, ref_mm: np.ndarray, period_s: float) -> np.
 
 
 def cross_coupled_response(
-    drives: tuple[DriveModel, DriveModel], ref_mm: np.ndarray, period_s: float, gain: float
+    drives: tuple[DriveModel, DriveModel], ref_mm: np.ndarray, period_s: float, gain: float,
+    direction: np.ndarray | None = None,
 ) -> np.ndarray:
     """Simulate two axes under the cross-coupled contour controller of seed 003.
 
@@ -496,6 +497,9 @@ def cross_coupled_response(
         Servo period, s.
     gain : float
         Cross-coupling gain C (0: the same sampled loops without coupling).
+    direction : ndarray, shape (N, 2), optional
+        The contour direction θ of each sample (the desired path's tangent in the plane of the two axes, any
+        length; ``controller.theta: desired``). Default: the direction of the reference itself.
 
     Returns
     -------
@@ -511,11 +515,19 @@ def cross_coupled_response(
         raise ValueError("the reference contains NaN or infinite values")
     plants = [loop_plant(d) for d in drives]
     dev = r - r[0]
-    return r[0] + run_loop(plants, dev, period_s, path_normals(r), gain)
+    if direction is None:
+        normals = path_normals(r)
+    else:
+        direction = np.asarray(direction, dtype=float)
+        if direction.shape != r.shape:
+            raise ValueError(f"the contour direction must have the reference's shape {r.shape}, got {direction.shape}")
+        normals = direction_normals(direction)
+    return r[0] + run_loop(plants, dev, period_s, normals, gain)
 
 
 def simulate_drives(
-    ref_mm: np.ndarray, profile: MachineProfile, *, gain_schedule: Mapping[str, np.ndarray] | None = None
+    ref_mm: np.ndarray, profile: MachineProfile, *, gain_schedule: Mapping[str, np.ndarray] | None = None,
+    contour_direction: np.ndarray | None = None,
 ) -> np.ndarray:
     """Simulate every axis of a machine profile.
 
@@ -530,6 +542,10 @@ def simulate_drives(
         Position-loop gain of that axis in each servo period, (m/min)/mm (what
         ``ilcnc tune --method schedule`` writes, seed 001), instead of the
         drive's fixed ``kp_m_min_mm``. Only for ``p_ff_friction`` drives.
+    contour_direction : ndarray, same shape as ``ref_mm``, optional
+        Direction of the desired path at each sample (``controller.theta: desired``,
+        :func:`ilcnc.vcnc.simulate.simulate_program` finds it): the cross-coupled controller takes θ from it
+        instead of from the reference.
 
     Returns
     -------
@@ -556,7 +572,8 @@ def simulate_drives(
         i, j = (names.index(ax) for ax in ctl.coupled_axes)
         pair = (profile.axes[ctl.coupled_axes[0]].drive, profile.axes[ctl.coupled_axes[1]].drive)
         try:
-            out[:, [i, j]] = cross_coupled_response(pair, r[:, [i, j]], period, ctl.cross_coupling_gain)
+            way = None if contour_direction is None else np.asarray(contour_direction, dtype=float)[:, [i, j]]
+            out[:, [i, j]] = cross_coupled_response(pair, r[:, [i, j]], period, ctl.cross_coupling_gain, way)
         except DriveModelError as exc:
             where = f"controller.coupled_axes ({', '.join(ctl.coupled_axes)})"
             raise ProfileError(profile.path, None, f"{where}: {exc}") from None

@@ -31,7 +31,7 @@ from ilcnc.program.model import MOVE_LINE, Program
 from ilcnc.vcnc.machine_errors import ErrorSources
 from ilcnc.vcnc.plan import Reference, plan_program
 
-__all__ = ["SimulationResult", "simulate_program"]
+__all__ = ["SimulationResult", "desired_direction", "simulate_program"]
 
 
 @dataclass(slots=True, kw_only=True)
@@ -186,14 +186,9 @@ def simulate_program(
         from ilcnc.vcnc.schedule import schedule_on_samples
 
         gains = {ax: schedule_on_samples(t, kp, ref.n_samples, ref.period_s) for ax, (t, kp) in gain_schedule.items()}
-    act = simulate_drives(ref.pos_mm, profile, gain_schedule=gains)
-    timings["drives"] = time.perf_counter() - t0
-    if sources is None:
-        sources = ErrorSources.from_profile(profile)
     # the path with its rapids: a feed sample still on the line of the rapid before it is in the air, not off
     # the cut (its E(k) counts for no command: command_error.PathWeightedSums)
     path = PathGeometry.from_moves(target.moves, include_rapids=True)
-    rule, classes = profile_move_classes(target, profile)
     # the search reaches as far along the path as the machine lags behind its reference (contour.py): the
     # reference may leave its move by the corner tolerance, and a compensated program's moves lie off the
     # drawing's by their corrections
@@ -202,6 +197,14 @@ def simulate_program(
         slack = slack + against_slack_mm(program, target, move_map)
     reach = {"reference_mm": ref.pos_mm, "reference_slack_mm": slack}
     on_target = moves_on_target(ref.move, move_map)
+    way = None
+    if profile.controller.type == "cross_coupled" and profile.controller.theta == "desired":
+        way = desired_direction(path, ref.pos_mm, on_target, slack)
+    act = simulate_drives(ref.pos_mm, profile, gain_schedule=gains, contour_direction=way)
+    timings["drives"] = time.perf_counter() - t0
+    if sources is None:
+        sources = ErrorSources.from_profile(profile)
+    rule, classes = profile_move_classes(target, profile)
     shares: dict[str, dict[str, float]] = {}
     if sources.enabled and move_map is not None:
         raise InputError(against.path if against is not None else None, None, "--against a program with fewer points"
@@ -239,6 +242,26 @@ def simulate_program(
                             timings_s=timings, shares=shares, air_stats=acc.air_result(), cutting=rule,
                             worst_at=worst_at)
 
+
+
+def desired_direction(path: Any, ref_mm: NDArray[np.float64], hint_seg: NDArray[np.integer],
+                      slack_mm: Any) -> NDArray[np.float64]:
+    """Direction of the drawing at the point nearest each reference sample, (N, 3) unit vectors (0: none there).
+
+    What ``controller.theta: desired`` gives the cross-coupled controller: the tangent of ``path`` (a
+    :class:`ilcnc.contour.path.PathGeometry` of the original program) at the foot of each sample of the
+    reference ``ref_mm`` (N, 3), searched from ``hint_seg`` (the move of the original the sample is on)
+    within ``slack_mm`` (how far a corrected program's moves lie off the original's). On the uncorrected
+    program the foot is the reference itself.
+    """
+    from ilcnc.contour.search import contour_error
+
+    err = contour_error(path, ref_mm, hint_seg, reference_mm=ref_mm, reference_slack_mm=slack_mm)
+    out = np.zeros((ref_mm.shape[0], 3))
+    ok = err.seg >= 0
+    seg = err.seg[ok]
+    out[ok] = path.tangent_at(seg, np.clip(err.u[ok] - seg, 0.0, 1.0))
+    return out
 
 
 def _feed_stats(move: NDArray[np.int32], classes: NDArray[np.int8], dist: NDArray[np.float64]
