@@ -10,6 +10,7 @@ cycle time change, without and with ``--refine`` (the same run, so the ratios co
     python bench/refine.py --gamma 1 [PROG ...]  # refine with learning.gains.gamma: 1 (a profile copy)
     python bench/refine.py --feed [PROG ...]   # refine with learning.refine.feed: on (a profile copy)
     python bench/refine.py --arc-radial 0.01 [PROG ...]  # learning.arc_start_radial_mm: 0.01 (plain and refine)
+    python bench/refine.py --error path [PROG ...]  # learning.error: path (refine's default is lifted)
 """
 
 from __future__ import annotations
@@ -37,6 +38,11 @@ def main(argv: list[str]) -> None:
     arcs = "--arcs" in argv
     feed = "--feed" in argv
     argv = [a for a in argv if a not in ("--arcs", "--feed")]
+    error = None
+    if "--error" in argv:
+        i = argv.index("--error")
+        error = argv[i + 1]
+        argv = argv[:i] + argv[i + 2:]
     radial = None
     if "--arc-radial" in argv:
         i = argv.index("--arc-radial")
@@ -53,7 +59,7 @@ def main(argv: list[str]) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         profile = PROFILE
         variant = arcs or feed or gamma is not None
-        if variant or radial is not None:
+        if variant or radial is not None or error is not None:
             import yaml
 
             data = yaml.safe_load(PROFILE.read_text())
@@ -65,6 +71,8 @@ def main(argv: list[str]) -> None:
                 data["learning"]["gains"] = {"gamma": gamma}
             if radial is not None:
                 data["learning"]["arc_start_radial_mm"] = radial
+            if error is not None:
+                data["learning"]["error"] = error
             profile = Path(tmp) / "example-mill-variant.yaml"
             profile.write_text(yaml.safe_dump(data))
         for prog in programs:
@@ -82,6 +90,8 @@ def main(argv: list[str]) -> None:
                     f"g={gamma:g}" if gamma is not None else "") or mode
                 if radial is not None:
                     label = f"{label} r{radial:g}"
+                if error is not None:
+                    label = f"{label} {error}"
                 slowed = len((run.get("feed") or {}).get("slowed_moves", []))
                 print(f"{prog.name[:28]:28s} {label:8s} {b['max'] * 1e3:7.2f} -> {a['max'] * 1e3:6.2f}"
                       f" {a['max'] / b['max'] - 1:+6.0%} {b['rms'] * 1e3:6.2f} -> {a['rms'] * 1e3:5.2f}"
