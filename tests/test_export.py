@@ -233,8 +233,9 @@ def test_a_correction_may_not_move_an_arc_start_off_its_circle(tmp_path: Path) -
 
 def test_a_copy_of_a_program_the_interpreter_stops_in_says_so(tmp_path: Path) -> None:
     """Issue 21 item 3: export copies what it cannot interpret, byte for byte, and says so on stderr."""
-    src = tmp_path / "m98.ngc"
-    src.write_bytes(b"G21 G90\r\nG0 X0 Y0 Z5\r\nM98 P100\r\nG1 X1 F100\r\nM30\r\nO100\r\nG1 Y1\r\nM99\r\n")
+    src = tmp_path / "m98.ngc"  # (M98 subprograms are modelled since; the G5.1 spline is not)
+    src.write_bytes(b"G21 G90\r\nG0 X0 Y0 Z5\r\nG5.1 X2 Y2 I1 J1\r\nM98 P100\r\nG1 X1 F100\r\nM30\r\nO100\r\n"
+                    b"G1 Y1\r\nM99\r\n")
     out = tmp_path / "copy.ngc"
     res = _cli("export", str(src), "--out", str(out))
     assert res.returncode == 0, res.stderr

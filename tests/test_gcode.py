@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +25,7 @@ from ilcnc.program.model import (
     STYLE_LITERAL,
 )
 
-from .conftest import OWN, SAMPLES, sample_files
+from .conftest import OWN, SAMPLES, SHARED_SAMPLES, sample_files, shared_sample_reason
 
 GCODE_SAMPLES = [p for p in sample_files("gcode", "contour", "interp", "large")]
 
@@ -365,3 +368,98 @@ def test_e_words_of_analog_io_are_read(tmp_path):
     assert p.unsupported is None and p.command_end_mm.tolist() == [[1, 0, 0], [1, 1, 0]]
     with pytest.raises(ProgramError, match="E word with no"):
         _read("G21\nG1 X1 E5 F100\nM2\n")
+
+
+# -- Fanuc subprograms (M98 / M99), issue 21 ------------------------------------
+
+M98_PROGRAM = """G21 G90 G17
+G0 X0 Y0 Z1
+G1 Z-1 F300
+M98 P100 L3
+G1 X50 Y0 F600
+M98 P200
+G0 Z5
+M30
+
+O100 (step right)
+G91 G1 X10 F600
+G90
+M99
+
+O200 (two sides)
+G1 Y10
+G1 X40
+M99
+"""
+
+
+def _m98(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "m98.ngc"
+    p.write_text(text)
+    return p
+
+
+def test_fanuc_subprograms_run_as_linuxcnc_runs_them(tmp_path: Path) -> None:
+    """O100 runs three times (its incremental line is not a command: one line, three positions), O200 once
+    (its lines are commands like the main program's). The end points are those rs274 prints for this program
+    (LinuxCNC 2.9; checked in the next test where it is installed)."""
+    prog = read_program(_m98(tmp_path, M98_PROGRAM))
+    assert prog.unsupported is None
+    mv = prog.moves
+    assert mv.line.tolist() == [2, 3, 11, 11, 11, 5, 16, 17, 7]
+    assert mv.end_mm[:, 0].tolist() == [0, 0, 10, 20, 30, 50, 50, 40, 40]
+    assert mv.end_mm[:, 1].tolist() == [0, 0, 0, 0, 0, 0, 10, 10, 10]
+    assert prog.command_line.tolist() == [3, 5, 16, 17]
+
+
+@pytest.mark.linuxcnc
+@pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's interpreter rs274 is not installed (Debian:"
+                    " apt-get install linuxcnc-uspace): cannot compare M98/M99 with LinuxCNC")
+def test_fanuc_subprograms_agree_with_rs274(tmp_path: Path) -> None:
+    path = _m98(tmp_path, M98_PROGRAM)
+    res = subprocess.run(["rs274", "-g", str(path)], capture_output=True, text=True, timeout=60)
+    theirs = [[float(v) for v in m.split(",")[:3]]
+              for m in re.findall(r"STRAIGHT_(?:FEED|TRAVERSE)\(([^)]*)\)", res.stdout)]
+    assert np.array_equal(read_program(path).moves.end_mm, np.array(theirs))  # rs274 prints 4 decimals: exact here
+
+
+def test_fanuc_program_number_heads_a_program(tmp_path: Path) -> None:
+    """As rs274 runs it: an O number met in the flow does nothing (O1000 heads the program)."""
+    text = "O1000 (PART)\nG21 G90\nG0 X0 Y0 Z1\nM98 P7\nG1 X5 F100\nM30\nO7\nG1 Y3 F100\nM99\n"
+    prog = read_program(_m98(tmp_path, text))
+    assert prog.unsupported is None
+    assert prog.moves.line.tolist() == [3, 8, 5] and prog.command_line.tolist() == [8, 5]
+
+
+def test_fanuc_subprogram_without_motion_shared_sample() -> None:
+    """LinuxCNC's own nested M98 example (parameters shared with the caller, L repeats): read, no motion."""
+    src = SHARED_SAMPLES / "interp" / "lcnc_m98m99-nested-subs.ngc"
+    if not src.exists():
+        pytest.skip(shared_sample_reason("interp", src.name))
+    prog = read_program(src)
+    assert prog.unsupported is None and len(prog.moves) == 0
+
+
+@pytest.mark.parametrize(("text", "line", "problem"), [
+    ("G21\nG1 X1 F100\nM99\n", 3, "M99 in the main program"),
+    ("G21\nM98 P7\nM30\n", 2, "subprogram O7 is not in this file"),
+    ("G21\nM98 P7 G1 X1 F100\nM30\nO7\nM99\n", 2, "M98 with other words on its line"),
+    # rs274: "EOF in file seeking o-word: o<7> from line: 4"
+    ("G21\nO7\nG1 Y3 F100\nM98 P7\nG1 X5\nM30\n", 4, "O7 stands before the call"),
+])
+def test_fanuc_subprograms_the_reader_does_not_model_are_named(tmp_path: Path, text: str, line: int,
+                                                               problem: str) -> None:
+    prog = read_program(_m98(tmp_path, text))
+    assert prog.unsupported is not None and prog.unsupported[0] == line and problem in prog.unsupported[1]
+
+
+@pytest.mark.parametrize(("text", "line", "problem"), [
+    ("G21\nM30\nO7\nM99\nO7\nM99\n", 5, "O7 is defined twice"),
+    ("G21\nM98\nM30\nO7\nM99\n", 2, "M98 needs P"),
+    # rs274: "File ended with no percent sign or program end"
+    ("O1000\nG21 G90\nG0 X0 Y0 Z1\nM98 P7\nG1 X5 F100\nM30\nO7\nG1 Y3 F100\n", 7, "ends inside subprogram O7"),
+])
+def test_bad_fanuc_subprograms_are_refused_with_their_line(tmp_path: Path, text: str, line: int, problem: str) -> None:
+    with pytest.raises(ProgramError, match=problem) as exc:
+        read_program(_m98(tmp_path, text))
+    assert exc.value.line == line

@@ -1,4 +1,14 @@
-"""O-word control flow of LinuxCNC G-code: subroutines, calls, if/while/do/repeat.
+"""O-word control flow of LinuxCNC G-code: subroutines, calls, if/while/do/repeat, Fanuc M98/M99.
+
+Fanuc-style subprograms, as LinuxCNC 2.9 runs them: a subprogram starts at a
+line holding only its number (``O1000``) and ends at the first ``M99`` after
+it; ``M98 P1000 L3`` calls it three times. Unlike an ``o-sub`` it has no
+local parameters (#1-#30 are the caller's). Met in the program's flow, the
+number line does nothing (a program number) and the lines after it run (as
+LinuxCNC's ``rs274`` runs it); a call that reaches the end of the file is an
+error, as in rs274. A call to a subprogram that stands before it is not
+modelled (rs274 seeks the number after the call only). ``M99`` in the main program (a control restarts the
+program, endlessly) is not modelled.
 
 A program with O-word control flow is executed line by line with a program
 counter (no vectorised fast path: such programs are written by hand and
@@ -55,7 +65,9 @@ _OLINE = re.compile(
 )
 # Found anywhere (a comment may hold one too: then the line-by-line path simply runs, still correct);
 # no anchor, so the scan jumps from one O to the next instead of testing every line start.
-_HAS_FLOW = re.compile(r"[Oo][ \t]*(?:<[^>]*>|\d+)[ \t]*(?i:sub|call|if|while|do|repeat)\b")
+_HAS_FLOW = re.compile(r"[Oo][ \t]*(?:<[^>]*>|\d+)[ \t]*(?i:sub|call|if|while|do|repeat)\b|[Mm][ \t]*0*9[89](?![0-9.])")
+#: A Fanuc subprogram's first line: its number alone (a block number and comments may stand with it).
+_FANUC_SUB = re.compile(r"\s*(?:/\s*)?(?:[Nn]\s*\d+\s*)?[Oo]\s*(\d+)\s*(?:\([^)]*\)\s*)*(?:;.*)?$")
 
 
 def has_control_flow(text: str) -> bool:
@@ -92,6 +104,16 @@ class _Structure:
     subs: dict[str, tuple[int, int]] = field(default_factory=dict)  # label -> (sub line, endsub line)
     partner: dict[int, int] = field(default_factory=dict)  # opening -> closing line and back
     branches: dict[int, list[int]] = field(default_factory=dict)  # if line -> [elseif/else lines..., endif]
+    fanuc: dict[int, int] = field(default_factory=dict)  # Fanuc subprogram number -> its O line
+
+
+@dataclass(slots=True)
+class _FanucCall:
+    """An ``M98`` call in progress: where to return, the subprogram's first line and the repeats left."""
+
+    return_to: int
+    start: int
+    left: int
 
 
 def _strip_comment(s: str) -> str:
@@ -109,6 +131,12 @@ def _scan(path: object, lines: list[str]) -> _Structure:
             continue
         m = _OLINE.match(raw)
         if m is None:
+            f = _FANUC_SUB.match(raw)
+            if f is not None:
+                num = int(f.group(1))
+                if num in st.fanuc:
+                    raise ProgramError(path, i + 1, f"subprogram O{num} is defined twice (line {st.fanuc[num] + 1})")
+                st.fanuc[num] = i
             continue
         label = m.group(1).replace(" ", "").lower()
         kw = m.group(2).lower()
@@ -162,6 +190,7 @@ def run_control_flow(
     executed = np.zeros(n, dtype=np.int64)
     frames: list[_Frame] = []
     loops: list[_Loop] = []
+    fanuc_calls: list[_FanucCall] = []
     unsupported: tuple[int, str] | None = None
     pc = 0
     steps = 0
@@ -233,6 +262,34 @@ def run_control_flow(
                         break
                     continue
                 executed[i] += 1
+                m98 = _fanuc_word(blk, path)
+                if m98 == 98:
+                    num, times = _fanuc_call(blk, path)
+                    start = struct.fanuc.get(num)
+                    if start is None:
+                        raise Unmodelled(line, f"M98 P{num}: subprogram O{num} is not in this file (files are not"
+                                               " searched)")
+                    if start < i:
+                        # rs274 seeks the number after the call and stops at the end of the file
+                        raise Unmodelled(line, f"M98 P{num}: O{num} stands before the call (line {start + 1});"
+                                               " LinuxCNC looks for it after the call: not modelled")
+                    if len(fanuc_calls) + len(frames) > 200:
+                        raise Unmodelled(line, "subprogram calls nested deeper than 200")
+                    if times > 0:
+                        fanuc_calls.append(_FanucCall(pc, start + 1, times - 1))
+                        pc = start + 1
+                    continue
+                if m98 == 99:
+                    if not fanuc_calls:
+                        raise Unmodelled(line, "M99 in the main program (restart it, endlessly) is not modelled")
+                    call = fanuc_calls[-1]
+                    if call.left > 0:
+                        call.left -= 1
+                        pc = call.start
+                    else:
+                        fanuc_calls.pop()
+                        pc = call.return_to
+                    continue
                 interp.execute(blk)
                 if interp.ended:
                     break
@@ -339,6 +396,10 @@ def run_control_flow(
                     pc = loop.start if loop.kind == "while" else close
             else:  # pragma: no cover - the regex admits only the keywords above
                 raise ProgramError(path, line, f"unknown O-word keyword {kw}")
+        if fanuc_calls and pc >= n:
+            start = fanuc_calls[-1].start  # the line after the subprogram's number, 1-based: its O line + 1
+            raise ProgramError(path, start, f"the file ends inside subprogram {lines[start - 1].strip()} (no M99;"
+                                            " LinuxCNC stops with 'File ended with no percent sign or program end')")
     except Unmodelled as exc:
         unsupported = (exc.line, exc.problem)
     lexer.lenient = True
@@ -351,6 +412,35 @@ def run_control_flow(
         lexer.lex(s, int(line_start[i]), int(i) + 1)
     _mark_repeated(interp, executed)
     return unsupported
+
+
+def _fanuc_word(blk: Any, path: Path) -> int | None:
+    """98 or 99 when the block holds ``M98`` / ``M99`` (then nothing but P, L and N may stand with it)."""
+    found = None
+    for w in blk.words:
+        if w.letter == "M" and w.value in (98.0, 99.0):
+            found = int(w.value)
+    if found is None:
+        return None
+    other = [w.letter for w in blk.words if w.letter not in ("M", "P", "L", "N") or
+             (w.letter == "M" and w.value not in (98.0, 99.0))]
+    if other or blk.assignments:
+        raise Unmodelled(blk.line, f"M{found} with other words on its line ({', '.join(other) or 'a parameter'}) is"
+                                   " not modelled")
+    return found
+
+
+def _fanuc_call(blk: Any, path: Path) -> tuple[int, int]:
+    """The subprogram number (P) and the number of calls (L, default 1) of an ``M98`` block."""
+    p = next((w.value for w in blk.words if w.letter == "P"), None)
+    times = next((w.value for w in blk.words if w.letter == "L"), 1.0)
+    if p is None or p < 0 or p != round(p):
+        raise ProgramError(path, blk.line, "M98 needs P, the number of the subprogram to call")
+    if times < 0 or times != round(times):
+        raise ProgramError(path, blk.line, f"M98 L must be a whole number of calls, got L{times:g}")
+    if times * 1 >= MAX_EXECUTED_LINES:
+        raise Unmodelled(blk.line, f"M98 L{times:g} would run more than {MAX_EXECUTED_LINES} lines: not modelled")
+    return int(p), int(times)
 
 
 def _pop_loop(loops: list[_Loop], label: str) -> None:
