@@ -463,3 +463,75 @@ def test_bad_fanuc_subprograms_are_refused_with_their_line(tmp_path: Path, text:
     with pytest.raises(ProgramError, match=problem) as exc:
         read_program(_m98(tmp_path, text))
     assert exc.value.line == line
+
+
+# -- G5.1 quadratic splines, issue 21 ---------------------------------------------
+
+SPLINE_PROGRAM = """G21 G90 G17
+G0 X0 Y0 Z-1
+G1 X2 Y0 F600
+G5.1 X12 Y0 I5 J5
+G1 X20 Y3
+G91 G5.1 X10 Y0 I5 J-5
+G90 G1 X30 Y10
+M30
+"""
+
+
+def test_quadratic_spline_is_followed_through_chords_on_the_curve(tmp_path: Path) -> None:
+    """G5.1 X Y I J: the Bézier curve from the start through the control point start + (I, J) to (X, Y); the
+    reader generates chords whose vertices lie on the curve and whose middles are within SPLINE_CHORD_MM of it
+    (|B''| dt² / 8 with B'' = 2 (p0 - 2 p1 + p2)); they are not commands, the moves around them are."""
+    from ilcnc.program.gcode import SPLINE_CHORD_MM
+    from ilcnc.program.model import FLAG_DERIVED
+
+    prog = read_program(_m98(tmp_path, SPLINE_PROGRAM))
+    assert prog.unsupported is None
+    mv = prog.moves
+    assert prog.command_line.tolist() == [3, 5, 7]
+    for line, p0, ctrl, p2 in ((4, (2, 0), (7, 5), (12, 0)), (6, (20, 3), (25, -2), (30, 3))):
+        sel = np.flatnonzero(mv.line == line)
+        assert np.all(mv.flags[sel] & FLAG_DERIVED) and np.all(mv.command[sel] < 0) and np.all(mv.end_mm[sel, 2] == -1)
+        p0, ctrl, p2 = (np.array(v, float) for v in (p0, ctrl, p2))
+        assert np.array_equal(mv.end_mm[sel[-1], :2], p2) and np.array_equal(mv.start_mm[sel[0], :2], p0)
+        n = sel.size
+        assert n == int(np.ceil(np.sqrt(np.hypot(*(p0 - 2 * ctrl + p2)) / (4 * SPLINE_CHORD_MM))))
+        t = np.arange(1, n + 1) / n
+        curve = (1 - t)[:, None] ** 2 * p0 + (2 * t * (1 - t))[:, None] * ctrl + (t * t)[:, None] * p2
+        assert np.abs(mv.end_mm[sel, :2] - curve).max() <= 1e-12 * 30  # the same arithmetic, a few ulps of 30 mm
+        tm = (np.arange(n) + 0.5) / n
+        mid = (1 - tm)[:, None] ** 2 * p0 + (2 * tm * (1 - tm))[:, None] * ctrl + (tm * tm)[:, None] * p2
+        chord_mid = 0.5 * (mv.start_mm[sel, :2] + mv.end_mm[sel, :2])
+        assert np.hypot(*(chord_mid - mid).T).max() <= SPLINE_CHORD_MM * (1 + 1e-9)
+
+
+def test_a_corrected_program_keeps_its_splines_as_written(tmp_path: Path) -> None:
+    from ilcnc.learning.learner import axes_free_to_move
+    from ilcnc.program.rewrite import apply_corrections
+
+    src = _m98(tmp_path, SPLINE_PROGRAM)
+    prog = read_program(src)
+    free = axes_free_to_move(prog)
+    # the end point before a spline is its start (and with it the control point): the learning leaves it alone
+    assert free.tolist() == [[False, False, False], [False, False, False], [True, True, True]]
+    corr = np.zeros((prog.n_commands, 3))
+    corr[:, :2] = 0.004  # every free command 4 µm off in X and Y
+    corr[~free] = 0.0
+    out, _edits = apply_corrections(prog, corr)
+    lines_in, lines_out = SPLINE_PROGRAM.splitlines(), out.splitlines()
+    assert [i + 1 for i, (a, b) in enumerate(zip(lines_in, lines_out, strict=True)) if a != b] == [7]
+    again = read_program(_m98(tmp_path, out))
+    assert np.allclose(again.command_end_mm, prog.command_end_mm + corr, atol=1e-9)
+
+
+@pytest.mark.parametrize(("body", "problem"), [
+    ("G5.1 X10 Y0 I5 F600", "must specify both I and J"),
+    ("G5.1 X10 Y0 Z1 I5 J5 F600", "XY plane only"),
+    ("G18\nG5.1 X10 Z0 I5 K5 F600", "only allowed in the XY plane"),
+    ("G5.1 X10 Y0 I5 J5 F600\nX20 Y0", "without I and J"),
+    ("G41 D1 G5.1 X10 Y0 I5 J5 F600", "cutter radius compensation"),
+])
+def test_quadratic_splines_linuxcnc_refuses_are_refused(tmp_path: Path, body: str, problem: str) -> None:
+    """Each refused by rs274 too (the last but one: rs274 makes no move, refused here rather than guessed)."""
+    prog = read_program(_m98(tmp_path, f"G21 G90 G17\nG0 X0 Y0 Z0\n{body}\nG1 X0 Y0\nM30\n"))
+    assert prog.unsupported is not None and problem in prog.unsupported[1]

@@ -86,7 +86,7 @@ _KNOWN_G = _MOTION | _GROUP0 | {
     970, 980, 990, 70, 80, 150, 160,
 }
 _UNSUPPORTED_G = {
-    50: "G5 cubic spline", 51: "G5.1 quadratic spline", 52: "G5.2 NURBS", 53: "G5.3 NURBS",
+    50: "G5 cubic spline", 52: "G5.2 NURBS", 53: "G5.3 NURBS",
     70: "G7 lathe diameter mode", 80: "G8 lathe radius mode", 150: "G15 polar mode", 160: "G16 polar mode",
     330: "G33 spindle-synchronised motion", 331: "G33.1 rigid tapping", 382: "G38.2 probing",
     383: "G38.3 probing", 384: "G38.4 probing", 385: "G38.5 probing",
@@ -100,6 +100,10 @@ _UNSUPPORTED_G = {
 # miss the end radius by 0.02*sqrt(2) mm (mm programs) or 0.001*sqrt(2) inch (model.arc_off_circle), R-format
 # arcs may be short of the half chord by 0.00127 mm (0.00005 inch) before they are refused.
 _RADIUS_TOLERANCE_MM = 0.00127
+#: Largest distance of a G5.1 spline's chords from the curve, mm (the moves the reader generates for it).
+SPLINE_CHORD_MM = 1e-4
+#: Most chords of one G5.1 spline (a curve that needs more is refused with its line).
+MAX_SPLINE_CHORDS = 100_000
 
 
 #: G codes that use a Q word (G5, G10, G64, G73, G76, G83), as round(value * 10).
@@ -637,6 +641,11 @@ class _Interpreter:
             self._add(MOVE_LINE, line, tuple(target), flags=flags, words=axis_words, offset=off, feed=feed,
                       correctable=correctable, insert_at=blk.end_offset, block_time=self._block_time_s())
             return
+        if motion == 51:
+            if machine:
+                raise self.error(line, "G53 is only allowed with G0 or G1")
+            self._quadratic_spline(letters, target, off, line, flags)
+            return
         if motion in (20, 30):
             if machine:
                 raise self.error(line, "G53 is only allowed with G0 or G1")
@@ -790,6 +799,51 @@ class _Interpreter:
             center[:, a1] = np.where(use_r, start[:, a1] + dx / 2 + sgn * h * -uy, center[:, a1])
             center[:, a2] = np.where(use_r, start[:, a2] + dy / 2 + sgn * h * ux, center[:, a2])
         return int(np.argmax(bad)) if bad.any() else -1
+
+    def _quadratic_spline(self, letters: dict[str, Word], target: list[float], off: tuple[float, float, float],
+                          line: int, flags: int) -> None:
+        """``G5.1 X Y I J``: the quadratic spline (Bézier) from the current point through the control point at the
+        start + (I, J) to (X, Y), as straight moves the reader generates (``FLAG_DERIVED``: never commands, like a
+        cycle's motion), with chords within :data:`SPLINE_CHORD_MM` of the curve.
+
+        Its control point and end are not corrected: moving one reshapes the whole curve, and a correction is a
+        point's, not a curve's. As LinuxCNC: XY plane only, I and J both required (incremental from the start,
+        whatever G90.1 says), no Z word. LinuxCNC runs the curve with its own approximation; the virtual CNC
+        follows the chords."""
+        st = self.st
+        if st.plane != PLANE_XY:
+            raise self.error(line, "G5.1 is only allowed in the XY plane (G17)")
+        if "I" not in letters and "J" not in letters:
+            # rs274 makes no move for such a line (and no error): refused rather than guessed
+            raise Unmodelled(line, "X/Y words in G5.1 mode without I and J (LinuxCNC makes no move) are not modelled")
+        if "I" not in letters or "J" not in letters:
+            raise self.error(line, "must specify both I and J with G5.1")
+        if "Z" in letters or "K" in letters or "R" in letters:
+            raise self.error(line, "G5.1 moves in the XY plane only (no Z, K or R word)")
+        if st.feed <= 0 and st.feed_mode == 940:
+            raise self.error(line, "G5.1 with zero feed rate (no F word before)")
+        if st.feed_mode == 930:
+            raise Unmodelled(line, "G5.1 in inverse time (G93) is not modelled")
+        if st.cutter_comp:
+            raise self.error(line, "G5.1 with cutter radius compensation is not allowed")
+        p0 = np.array(st.pos[:2])
+        p1 = p0 + np.array([letters["I"].value, letters["J"].value]) * st.unit
+        p2 = np.array(target[:2])
+        # B''(t) = 2 (p0 - 2 p1 + p2): a chord over dt misses the curve by at most |p0 - 2 p1 + p2| dt^2 / 4
+        bend = float(np.hypot(*(p0 - 2.0 * p1 + p2)))
+        n = max(1, math.ceil(math.sqrt(bend / (4.0 * SPLINE_CHORD_MM))))
+        if not n <= MAX_SPLINE_CHORDS:
+            raise Unmodelled(line, f"G5.1 spline needs more than {MAX_SPLINE_CHORDS:,} chords of"
+                                   f" {SPLINE_CHORD_MM * 1e3:g} µm: not modelled")
+        t = np.arange(1, n + 1) / n
+        pts = (((1 - t) ** 2)[:, None] * p0 + (2 * t * (1 - t))[:, None] * p1 + (t * t)[:, None] * p2)
+        pts[-1] = p2
+        none3: list[Word | None] = [None, None, None]
+        z = st.pos[2]
+        for x, y in pts:
+            length = math.dist(st.pos, (x, y, z))
+            self._add(MOVE_LINE, line, (float(x), float(y), z), flags=flags | FLAG_DERIVED, words=none3, offset=off,
+                      feed=self._feed_mm_min(length, line, letters))
 
     def _arc(self, motion: int, letters: dict[str, Word], axis_words: list[Word | None], target: list[float],
              off: tuple[float, float, float], line: int, blk: Block, flags: int) -> None:
