@@ -10,7 +10,7 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import typer
 
@@ -66,6 +66,17 @@ def _console():
     from rich.console import Console
 
     return Console()
+
+
+def _table(title: str, *, show_header: bool = True) -> Any:
+    """A table that fits a terminal of 80 columns without cutting anything (issue 23 item 7): light rules, one
+    space between columns, and every column added with ``overflow="fold"`` (a long name or number wraps onto
+    the next line instead of ending in '…'). Numbers in full are in ``--json``."""
+    from rich import box
+    from rich.table import Table
+
+    return Table(title=title, show_header=show_header, box=box.SIMPLE_HEAD, padding=(0, 1), collapse_padding=True,
+                 pad_edge=False)
 
 
 #: Help of ``--log-columns`` (learn, simulate --compare).
@@ -264,14 +275,13 @@ def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_
     if as_json:
         typer.echo(json.dumps({"program": str(program), "log": str(log_path), "fidelity": fid.to_json()}))
         return
-    from rich.table import Table
 
     def um(x: float) -> str:
         return f"{x * 1e3:.2f}"
 
-    t = Table(title=f"virtual CNC against {log_path.name}: {prog.path.name}", show_header=False)
-    t.add_column("what")
-    t.add_column("value")
+    t = _table(f"virtual CNC against {log_path.name}: {prog.path.name}", show_header=False)
+    t.add_column("what", overflow="fold")
+    t.add_column("value", overflow="fold")
     t.add_row("commands measured by both", str(fid.commands))
     t.add_row("correlation of |E(k)|", f"{fid.correlation:.3f} (target ≥ {TARGET_CORRELATION:g})")
     t.add_row("  per axis", " / ".join(f"{a} {c:.3f}" for a, c in fid.axis_correlation.items()))
@@ -320,11 +330,10 @@ def _simulate_with_progress(prog, prof, orig, console, samples: bool):
 
 
 def _print_simulation(result, prog, console, out: Path | None) -> None:
-    from rich.table import Table
 
-    t = Table(title=f"virtual CNC: {prog.path.name}", show_header=False)
-    t.add_column("what")
-    t.add_column("value")
+    t = _table(f"virtual CNC: {prog.path.name}", show_header=False)
+    t.add_column("what", overflow="fold")
+    t.add_column("value", overflow="fold")
     t.add_row("samples", f"{result.n_samples} at {result.period_s * 1e3:g} ms")
     t.add_row("cycle time (s)", f"{result.cycle_time_s:.2f}")
     for key in ("max", "mean", "rms"):
@@ -426,9 +435,17 @@ def learn(
 
 
 def _learn_with_progress(learn_part, req, console):
-    """Virtual learning with a progress bar over the iterations (shown on a terminal only)."""
-    if not console.is_terminal:  # a live display off a terminal leaves a blank line before any error or table
-        return learn_part(req)
+    """Virtual learning with a progress bar over the iterations on a terminal; piped, one line per iteration on
+    stderr (a live display off a terminal leaves a blank line before any error or table)."""
+    if not console.is_terminal:
+        seen: set[int] = set()
+
+        def line(it: int, total: int, stage: str) -> None:
+            if it not in seen:
+                seen.add(it)
+                typer.echo(f"learning: iteration {it}/{total}", err=True)
+
+        return learn_part(req, progress=line)
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     with Progress(TextColumn("learning: {task.description:<22}"), BarColumn(), TimeElapsedColumn(),
@@ -442,11 +459,10 @@ def _learn_with_progress(learn_part, req, console):
 
 
 def _print_learning(outcome, console) -> None:
-    from rich.table import Table
 
-    t = Table(title=f"learning: {outcome.program.name} ({outcome.mode}): cutting moves' contour error")
+    t = _table(f"learning: {outcome.program.name} ({outcome.mode}): cutting moves' contour error")
     for col in ("iteration", "max (µm)", "mean (µm)", "RMS (µm)", "air max (µm)", "cycle (s)", "clipped", "kept"):
-        t.add_column(col, justify="right")
+        t.add_column(col, justify="right", overflow="fold")
     for it in outcome.iterations:
         ce = it.get("contour_error_mm")
         if ce is None:
@@ -528,12 +544,11 @@ def identify(
     if as_json:
         typer.echo(json.dumps(ident.to_json()))
         return
-    from rich.table import Table
 
     console = _console()
-    t = Table(title=f"identify: {step.name}, axis {axis.upper()}, model {ident.model} ({ident.signal})")
+    t = _table(f"identify: {step.name}, axis {axis.upper()}, model {ident.model} ({ident.signal})")
     for col in ("parameter", "value", "± std. error", "95 % interval", "unit"):
-        t.add_column(col)
+        t.add_column(col, overflow="fold")
     for r in ident.parameter_rows():
         t.add_row(str(r["name"]), f"{r['value']:.6g}", f"{r['stderr']:.3g}", f"[{r['ci_low']:.6g}, {r['ci_high']:.6g}]",
                   str(r.get("unit", "")))
@@ -593,12 +608,11 @@ def tune(
     if as_json:
         typer.echo(json.dumps(report.to_json()))
         return
-    from rich.table import Table
 
     console = _console()
-    t = Table(title=f"tune: {profile.name} ({report.method})")
+    t = _table(f"tune: {profile.name} ({report.method})")
     for col in report.columns():
-        t.add_column(col)
+        t.add_column(col, overflow="fold")
     for row in report.rows():
         t.add_row(*[str(c) for c in row])
     console.print(t)
@@ -718,20 +732,23 @@ def batch(
 
 
 def _print_batch(results, console, out: Path) -> None:
-    from rich.table import Table
-
-    t = Table(title=f"batch: {len(results)} parts (cutting moves' contour error)")
-    for col in ("part", "profile", "commands", "iterations", "max before (µm)", "max after (µm)", "RMS before (µm)",
-                "RMS after (µm)", "clipped", "status"):
-        t.add_column(col)
+    profiles = sorted({Path(r.profile).name for r in results})
+    one = len(profiles) == 1
+    title = f"batch: {len(results)} parts on {profiles[0]}" if one else f"batch: {len(results)} parts"
+    t = _table(title + " (cutting moves' contour error, µm)")
+    cols = ("part",) + (() if one else ("profile",)) + ("G01", "it.", "max", "RMS", "clipped", "status")
+    for col in cols:
+        t.add_column(col, overflow="fold", justify="left" if col in ("part", "profile", "status") else "right")
 
     def um(x) -> str:
         return "-" if x is None else f"{x * 1e3:.2f}"
 
     for r in results:
         ce, mx = r.contour_error_mm, r.max_error_mm
-        t.add_row(Path(r.program).name, Path(r.profile).name, str(r.g01_commands), str(r.iterations), um(mx["before"]),
-                  um(mx["after"]), um(ce["before"]), um(ce["after"]), str(r.clipped), r.status)
+        row = [Path(r.program).name] + ([] if one else [Path(r.profile).name])
+        row += [str(r.g01_commands), str(r.iterations), f"{um(mx['before'])}→{um(mx['after'])}",
+                f"{um(ce['before'])}→{um(ce['after'])}", str(r.clipped), str(r.status)]
+        t.add_row(*row)
     console.print(t)
     console.print(f"summary: {out / 'summary.csv'}")
 
