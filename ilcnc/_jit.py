@@ -15,7 +15,8 @@ leaves a function as plain Python, sets ``py_func`` like numba does, and
 
 The first run after an install compiles the kernels it uses (20-40 s; later runs load them from the cache
 in milliseconds). When a kernel has to be compiled, a line on stderr says so, once per process, and on a
-terminal a progress line names the kernel being compiled and the seconds so far (cleared when it is done).
+terminal a progress line names the kernel being compiled and the seconds so far (cleared when it is done;
+under a command's own progress bar the bar shows it: :func:`compiling_now`).
 ``ilcnc selftest`` compiles the kernels of the usual commands ahead of time.
 """
 
@@ -28,7 +29,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["HAVE_NUMBA", "LazyKernel", "compile_stats", "intrinsic", "njit", "numba_loaded", "numba_types",
+__all__ = ["HAVE_NUMBA", "LazyKernel", "compile_stats", "compiling_now", "intrinsic", "njit", "numba_loaded", "numba_types",
            "set_component"]
 
 #: numba can be imported (found without importing it: importing it is what start-up saves).
@@ -62,8 +63,8 @@ class LazyKernel:
         self.__qualname__ = getattr(py_func, "__qualname__", self.__name__)
 
     def real(self) -> Any:
-        """numba's object (imports numba the first time)."""
-        if self._real is None:
+        """numba's object (imports numba the first time; another thread waits until every module is done)."""
+        if _numba is None:
             _load_numba()
         return self._real
 
@@ -146,12 +147,7 @@ def _load_numba() -> Any:
 
         _install_compile_listener(numba)
         _register_typeof(numba)
-        swap: dict[int, Any] = {}
-        for k in _pending:
-            k._real = k._make(numba)
-            swap[id(k)] = k._real
-        _numba = numba
-        _pending.clear()
+        swap = {id(k): k._make(numba) for k in _pending}
         for name, mod in list(sys.modules.items()):
             if mod is None or not (name == "ilcnc" or name.startswith("ilcnc.")):
                 continue
@@ -159,10 +155,15 @@ def _load_numba() -> Any:
             if not ns:
                 continue
             for key, val in list(ns.items()):
-                if type(val) is LazyKernel:
-                    ns[key] = val.real() if id(val) not in swap else swap[id(val)]
+                if type(val) is LazyKernel and id(val) in swap:
+                    ns[key] = swap[id(val)]
                 elif type(val) is _LazyTypes:
                     ns[key] = numba.types
+        for k in _pending:
+            k._real = swap[id(k)]
+        _pending.clear()
+        # last: a thread that sees numba loaded (without the lock) sees every module's namespace done
+        _numba = numba
         return numba
 
 
@@ -187,6 +188,14 @@ def compile_stats() -> dict[str, Any]:
     order they were done (a kernel's seconds include what it called that had to be compiled first: other
     kernels, numba's own array and string functions), and ``seconds``, the wall time spent compiling."""
     return {"compiled": list(_stats["compiled"]), "seconds": float(_stats["seconds"])}
+
+
+def compiling_now() -> str | None:
+    """What is being compiled, short, for a progress bar ("compiling group_kernel, once"), or None."""
+    with _plock:
+        if _progress.depth == 0:
+            return None
+        return f"compiling {_progress.name.rsplit('.', 1)[-1]}, once"
 
 
 class _Progress:
@@ -221,7 +230,7 @@ class _Progress:
                 return
             self.t0 = time.perf_counter()
             if name is None:
-                self.name = "numba's own functions"
+                self.name = "numba internals"
             if not self.noticed:
                 self.noticed = True
                 try:
@@ -243,6 +252,13 @@ class _Progress:
                 _stats["seconds"] += time.perf_counter() - self.t0
                 self._draw(clear=True)
 
+    def status(self) -> str | None:
+        with _plock:
+            if self.depth == 0:
+                return None
+            return (f"compiling {self.name}, once: {len(_stats['compiled'])} kernels done,"
+                    f" {_stats['seconds'] + time.perf_counter() - self.t0:.0f} s")
+
     def _draw(self, clear: bool = False) -> None:
         tty = self._tty()
         if tty is None:
@@ -253,9 +269,7 @@ class _Progress:
                     tty.write("\r\033[K")
                     self.shown = False
             else:
-                done = len(_stats["compiled"])
-                tty.write(f"\r\033[Kilcnc: compiling {self.name} ({done} kernels done, "
-                          f"{_stats['seconds'] + time.perf_counter() - self.t0:.0f} s)")
+                tty.write(f"\r\033[Kilcnc: {self.status()}")
                 self.shown = True
             tty.flush()
         except (ValueError, OSError):  # pragma: no cover - the terminal went away

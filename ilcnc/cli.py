@@ -300,6 +300,23 @@ def _simulate(prog, prof, orig, samples: bool, progress=None):
     return simulate_figures(prog, prof, against=orig, progress=progress)
 
 
+def _compile_column():
+    """A progress-bar column that shows what numba is compiling on the first run after install (else nothing)."""
+    from rich.progress import ProgressColumn
+    from rich.text import Text
+
+    from ilcnc._jit import compiling_now
+
+    class CompileColumn(ProgressColumn):
+        max_refresh = 0.5
+
+        def render(self, task):
+            now = compiling_now()
+            return Text("" if now is None else now, style="dim")
+
+    return CompileColumn()
+
+
 def _simulate_with_progress(prog, prof, orig, console, samples: bool):
     """Run the virtual CNC with a progress bar over its stages (shown on a terminal only)."""
     if not console.is_terminal:  # a live display off a terminal leaves a blank line before any error or table
@@ -307,7 +324,8 @@ def _simulate_with_progress(prog, prof, orig, console, samples: bool):
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     stages = ("plan", "drives", "errors", "contour")
-    with Progress(TextColumn("simulating: {task.description:<8}"), BarColumn(), TimeElapsedColumn(),
+    with Progress(TextColumn("simulating: {task.description:<8}"), BarColumn(bar_width=24), TimeElapsedColumn(),
+                  _compile_column(),
                   console=console, transient=True) as bar:
         task = bar.add_task("plan", total=len(stages))
 
@@ -431,7 +449,8 @@ def _learn_with_progress(learn_part, req, console):
         return learn_part(req)
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    with Progress(TextColumn("learning: {task.description:<22}"), BarColumn(), TimeElapsedColumn(),
+    with Progress(TextColumn("learning: {task.description:<22}"), BarColumn(bar_width=24), TimeElapsedColumn(),
+                  _compile_column(),
                   console=console, transient=True) as bar:
         task = bar.add_task("iteration 0", total=None)
 
