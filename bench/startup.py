@@ -5,16 +5,19 @@ Usage (from the repository root)::
     python bench/startup.py                 # warm: 5 runs of each command, the numba cache as it is
     python bench/startup.py --cold          # also cold: each command once with a fresh, empty NUMBA_CACHE_DIR
     python bench/startup.py --runs 9        # more runs per command
-    python bench/startup.py --check         # exit 1 when a target is missed
+    python bench/startup.py --check         # exit 1 when a target is missed (with --cold: the cold ones too)
 
 Each command runs as its own process, as a shell script or a CI job runs it. In one run it prints
 the wall time of each command (minimum, median and maximum of ``--runs``) next to two references
 measured in the same run: ``python -c pass`` (the interpreter alone) and ``ilcnc --version`` (the
 command line without any work). Ratios against those references carry over from machine to
-machine; the seconds do not.
+machine; the seconds do not. Two more references say where the floor is: ``import numpy`` and
+``numba: 1 cached kernel`` (importing numba and loading one kernel from its cache, numba's own set-up
+that any command running a compiled kernel pays).
 
-Targets (issue 24): every command on a small program < 0.5 s warm; the first run after install
-(cold) < 10 s, or it says on stderr what it is doing.
+Targets (issue 24): every command on a small program < 0.5 s warm (the median); the first run after
+install (cold) < 10 s, or it says on stderr what it is doing (ilcnc's compile notice). Cold,
+``ilcnc selftest`` (the install step that compiles the kernels ahead) is timed too.
 """
 
 from __future__ import annotations
@@ -34,6 +37,10 @@ PROFILE = ROOT / "configs" / "example-mill.yaml"
 STAR = ROOT / "samples" / "own" / "star.ngc"
 TARGET_WARM_S = 0.5
 TARGET_COLD_S = 10.0
+#: How ilcnc's compile notice starts (ilcnc._jit.COMPILE_NOTICE; not imported: this script times the package).
+NOTICE = "ilcnc: compiling the numba kernels"
+#: Reference rows: not commands a user waits for, so no target.
+REFERENCES = ("python -c pass", "ilcnc --version", "import numpy", "numba: 1 cached kernel")
 
 
 def commands(tmp: Path) -> list[tuple[str, list[str]]]:
@@ -42,6 +49,8 @@ def commands(tmp: Path) -> list[tuple[str, list[str]]]:
     return [
         ("python -c pass", [sys.executable, "-c", "pass"]),
         ("ilcnc --version", [*ilcnc, "--version"]),
+        ("import numpy", [sys.executable, "-c", "import numpy"]),
+        ("numba: 1 cached kernel", [sys.executable, "-c", "from ilcnc._jit import set_component as f; f(1., 2., 3., 0, 4.)"]),
         ("inspect star.ngc", [*ilcnc, "inspect", str(STAR)]),
         ("check star.ngc", [*ilcnc, "check", str(STAR), "--profile", str(PROFILE), "--max-error", "0.05"]),
         ("simulate star.ngc", [*ilcnc, "simulate", str(STAR), "--profile", str(PROFILE)]),
@@ -50,10 +59,16 @@ def commands(tmp: Path) -> list[tuple[str, list[str]]]:
     ]
 
 
-def time_once(argv: list[str], env: dict[str, str]) -> tuple[float, int, str]:
+def cold_commands(tmp: Path) -> list[tuple[str, list[str]]]:
+    """The cold rows: the commands, and ``ilcnc selftest`` (the install step)."""
+    return [*commands(tmp), ("ilcnc selftest", [sys.executable, "-m", "ilcnc", "selftest"])]
+
+
+def time_once(argv: list[str], env: dict[str, str]) -> tuple[float, int, list[str]]:
+    """Wall time, exit code and stderr lines of one run."""
     t = time.perf_counter()
     res = subprocess.run(argv, env=env, capture_output=True, text=True, cwd=ROOT)
-    return time.perf_counter() - t, res.returncode, res.stderr.strip().splitlines()[-1] if res.stderr.strip() else ""
+    return time.perf_counter() - t, res.returncode, res.stderr.strip().splitlines()
 
 
 def main() -> int:
@@ -71,9 +86,10 @@ def main() -> int:
         for mode, cache in modes:
             runs = args.runs if mode == "warm" else args.cold_runs
             print(f"\n{mode}: wall time of the whole process, s (min / median / max of {runs} runs)")
-            ref = {}
-            for name, argv in commands(tmp):
+            ref: dict[str, float] = {}
+            for name, argv in (commands(tmp) if mode == "warm" else cold_commands(tmp)):
                 times = []
+                said = True  # every cold run of the command said what it was doing
                 for _ in range(runs):
                     run_env = dict(env)
                     if cache == "fresh":
@@ -83,22 +99,28 @@ def main() -> int:
                         time_once(argv, run_env)  # one untimed run fills the cache for the warm figures
                     dt, rc, err = time_once(argv, run_env)
                     if rc != 0:
-                        print(f"  {name}: exit {rc}: {err}")
+                        print(f"  {name}: exit {rc}: {err[-1] if err else ''}")
                         return 1
                     times.append(dt)
+                    said &= any(line.startswith(NOTICE) for line in err)
                     if cache == "fresh":
                         shutil.rmtree(run_env["NUMBA_CACHE_DIR"], ignore_errors=True)
                 med = statistics.median(times)
                 ref.setdefault(name, med)
                 base = ref.get("python -c pass", med)
                 cli = ref.get("ilcnc --version", med)
-                target = TARGET_WARM_S if mode == "warm" else TARGET_COLD_S
-                work = name not in ("python -c pass", "ilcnc --version")
-                met = med < target
+                work = name not in REFERENCES
+                if mode == "warm":
+                    met = med < TARGET_WARM_S
+                    verdict = f"target < {TARGET_WARM_S:g} s: {'met' if met else 'NOT MET'}"
+                else:
+                    met = med < TARGET_COLD_S or said
+                    verdict = (f"target < {TARGET_COLD_S:g} s or says so: "
+                               + ("met (< 10 s)" if med < TARGET_COLD_S else "met (says so on stderr)" if said
+                                  else "NOT MET"))
                 ok &= met or not work
                 print(f"  {name:32s} {min(times):7.3f} {med:7.3f} {max(times):7.3f}   {med / base:6.1f}x python,"
-                      f" {med / cli:5.1f}x --version" + (f"   target < {target:g} s: {'met' if met else 'NOT MET'}"
-                                                         if work else ""))
+                      f" {med / cli:5.1f}x --version" + (f"   {verdict}" if work else ""))
     return 0 if ok or not args.check else 1
 
 

@@ -1,34 +1,315 @@
-"""The one place that imports numba.
+"""The one place that imports numba, on first use.
+
+A command that never runs a compiled kernel never imports numba (issue 24: ``import numba`` costs
+~0.2-0.3 s and the first cached kernel another ~0.15-0.25 s of numba's own set-up). :func:`njit` and
+:func:`intrinsic` give a stand-in (:class:`LazyKernel`) until then; the first call of any of them imports
+numba, makes every stand-in made so far into the real dispatcher and puts the dispatcher where the stand-in
+was in the namespace of every loaded ``ilcnc`` module (a kernel finds the kernels it calls in its module's
+globals when it is compiled, so they must be numba's own objects by then). Kernels made after that are
+numba's dispatchers straight away. The dispatchers are the ones ``numba.njit`` makes from the same Python
+functions, so numba's cache (``__pycache__``, or ``NUMBA_CACHE_DIR``) holds the same entries as before.
 
 numba is a runtime dependency; when it is missing (a stripped install) :func:`njit`
 leaves a function as plain Python, sets ``py_func`` like numba does, and
 :data:`HAVE_NUMBA` tells the callers to take their numpy paths instead.
+
+The first run after an install compiles the kernels it uses (20-40 s; later runs load them from the cache
+in milliseconds). When a kernel has to be compiled, a line on stderr says so, once per process, and on a
+terminal a progress line names the kernel being compiled and the seconds so far (cleared when it is done;
+under a command's own progress bar the bar shows it: :func:`compiling_now`).
+``ilcnc selftest`` compiles the kernels of the usual commands ahead of time.
 """
 
 from __future__ import annotations
 
+import importlib.util
+import sys
+import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["HAVE_NUMBA", "njit", "set_component"]
+__all__ = ["HAVE_NUMBA", "LazyKernel", "compile_stats", "compiling_now", "intrinsic", "njit", "numba_loaded", "numba_types",
+           "set_component"]
 
-try:  # pragma: no cover - exercised by the environment, not by a test
-    from numba import njit
+#: numba can be imported (found without importing it: importing it is what start-up saves).
+HAVE_NUMBA = importlib.util.find_spec("numba") is not None
 
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - the numpy paths do the same work
-    HAVE_NUMBA = False
+#: Said on stderr once per process when a kernel has to be compiled (no cache entry yet).
+COMPILE_NOTICE = ("ilcnc: compiling the numba kernels, once after install (20-40 s; later runs load them from"
+                  " the cache; `ilcnc selftest` compiles them all)")
 
-    def njit(*args: Any, **kwargs: Any) -> Any:  # type: ignore[no-redef]
-        """Stand-in for :func:`numba.njit`: the function stays Python."""
+_lock = threading.RLock()
+_plock = threading.RLock()  # the progress line's
+_pending: list[LazyKernel] = []
+_numba: Any = None
 
-        def wrap(f: Callable[..., Any]) -> Callable[..., Any]:
+
+class LazyKernel:
+    """Stands for a numba dispatcher until numba is imported (see the module docstring).
+
+    Calling it, or asking it for any attribute but ``py_func``, imports numba and turns every stand-in into
+    its dispatcher; the stand-in then forwards to that dispatcher.
+    """
+
+    __slots__ = ("__name__", "__qualname__", "__wrapped__", "_make", "_real", "py_func")
+
+    def __init__(self, make: Callable[[Any], Any], py_func: Callable[..., Any]) -> None:
+        self._make = make
+        self._real: Any = None
+        self.py_func = py_func
+        self.__wrapped__ = py_func
+        self.__name__ = getattr(py_func, "__name__", "kernel")
+        self.__qualname__ = getattr(py_func, "__qualname__", self.__name__)
+
+    def real(self) -> Any:
+        """numba's object (imports numba the first time; another thread waits until every module is done)."""
+        if _numba is None:
+            _load_numba()
+        return self._real
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return self.real()(*args, **kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.real(), name)
+
+    def __repr__(self) -> str:
+        return f"<ilcnc lazy kernel {self.__qualname__}{' (loaded)' if self._real is not None else ''}>"
+
+
+class _LazyTypes:
+    """``numba.types`` for code that names numba types only when a kernel is compiled (an intrinsic's body)."""
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(_load_numba().types, name)
+
+
+#: ``numba.types``, imported when first used (``from ilcnc._jit import numba_types as types``).
+numba_types: Any = _LazyTypes()
+
+
+def numba_loaded() -> bool:
+    """numba has been imported by this process (a kernel ran, or someone imported it)."""
+    return _numba is not None
+
+
+def _lazy(make: Callable[[Any], Any], f: Callable[..., Any]) -> Any:
+    with _lock:
+        if _numba is not None:
+            return make(_numba)
+        k = LazyKernel(make, f)
+        _pending.append(k)
+        return k
+
+
+def njit(*args: Any, **kwargs: Any) -> Any:
+    """:func:`numba.njit` without importing numba before the kernel first runs (also ``njit(f)``).
+
+    Without numba the function stays plain Python (with ``py_func``, like numba's dispatchers).
+    """
+    if args and callable(args[0]) and not kwargs and len(args) == 1:
+        return njit()(args[0])
+
+    def wrap(f: Callable[..., Any]) -> Any:
+        if not HAVE_NUMBA:
             f.py_func = f  # type: ignore[attr-defined]
             return f
+        return _lazy(lambda nb: nb.njit(*args, **kwargs)(f), f)
 
-        if args and callable(args[0]):
-            return wrap(args[0])
-        return wrap
+    return wrap
+
+
+def intrinsic(f: Callable[..., Any]) -> Any:
+    """:func:`numba.extending.intrinsic`, made when numba is imported (numba only: an intrinsic has no Python)."""
+    return _lazy(lambda nb: _extending().intrinsic(f), f)
+
+
+def _extending() -> Any:
+    import numba.extending
+
+    return numba.extending
+
+
+def _load_numba() -> Any:
+    """Import numba, make every stand-in into numba's object and put those where the stand-ins were."""
+    global _numba
+    with _lock:
+        if _numba is not None:
+            return _numba
+        if not HAVE_NUMBA:  # pragma: no cover - a stand-in is only made when numba is there
+            raise RuntimeError("numba is not installed")
+        import numba
+
+        _install_compile_listener(numba)
+        _register_typeof(numba)
+        swap = {id(k): k._make(numba) for k in _pending}
+        for name, mod in list(sys.modules.items()):
+            if mod is None or not (name == "ilcnc" or name.startswith("ilcnc.")):
+                continue
+            ns = getattr(mod, "__dict__", None)
+            if not ns:
+                continue
+            for key, val in list(ns.items()):
+                if type(val) is LazyKernel and id(val) in swap:
+                    ns[key] = swap[id(val)]
+                elif type(val) is _LazyTypes:
+                    ns[key] = numba.types
+        for k in _pending:
+            k._real = swap[id(k)]
+        _pending.clear()
+        # last: a thread that sees numba loaded (without the lock) sees every module's namespace done
+        _numba = numba
+        return numba
+
+
+def _register_typeof(numba: Any) -> None:
+    """A stand-in passed to a kernel as an argument (a kernel given another kernel) is typed as its dispatcher."""
+    from numba.core.typing.typeof import typeof_impl
+
+    @typeof_impl.register(LazyKernel)
+    def _typeof_lazy(val: LazyKernel, c: Any) -> Any:
+        return typeof_impl(val.real(), c)
+
+
+# ---------------------------------------------------------------------------------------------
+# What the first run says while it compiles
+# ---------------------------------------------------------------------------------------------
+
+_stats: dict[str, Any] = {"compiled": [], "seconds": 0.0}
+
+
+def compile_stats() -> dict[str, Any]:
+    """What this process compiled (no cache entry): ``compiled``, ``(kernel, seconds)`` of ilcnc's kernels in the
+    order they were done (a kernel's seconds include what it called that had to be compiled first: other
+    kernels, numba's own array and string functions), and ``seconds``, the wall time spent compiling."""
+    return {"compiled": list(_stats["compiled"]), "seconds": float(_stats["seconds"])}
+
+
+def compiling_now() -> str | None:
+    """What is being compiled, short, for a progress bar ("compiling group_kernel, once"), or None."""
+    with _plock:
+        if _progress.depth == 0:
+            return None
+        return f"compiling {_progress.name.rsplit('.', 1)[-1]}, once"
+
+
+class _Progress:
+    """The notice line and, on a terminal, a progress line that is rewritten while kernels compile."""
+
+    def __init__(self) -> None:
+        self.depth = 0
+        self.noticed = False
+        self.t0 = 0.0
+        self.name = ""
+        self.shown = False
+        self.ticker: threading.Thread | None = None
+        self.started: list[float] = []
+
+    def _tty(self) -> Any:
+        # only when nothing redirects stderr (a rich live display prints its own elapsed time)
+        err = sys.stderr
+        if err is None or err is not sys.__stderr__:
+            return None
+        try:
+            return err if err.isatty() else None
+        except (AttributeError, ValueError):  # pragma: no cover - a closed or odd stream
+            return None
+
+    def start(self, name: str | None) -> None:
+        with _plock:
+            self.depth += 1
+            self.started.append(time.perf_counter())
+            if name is not None:
+                self.name = name
+            if self.depth > 1:
+                return
+            self.t0 = time.perf_counter()
+            if name is None:
+                self.name = "numba internals"
+            if not self.noticed:
+                self.noticed = True
+                try:
+                    sys.stderr.write(COMPILE_NOTICE + "\n")
+                    sys.stderr.flush()
+                except (AttributeError, ValueError, OSError):  # pragma: no cover - no usable stderr
+                    return
+            if self._tty() is not None and self.ticker is None:
+                self.ticker = threading.Thread(target=self._tick, name="ilcnc-compile-progress", daemon=True)
+                self.ticker.start()
+
+    def end(self, name: str | None) -> None:
+        with _plock:
+            t0 = self.started.pop() if self.started else time.perf_counter()
+            if name is not None:
+                _stats["compiled"].append((name, time.perf_counter() - t0))
+            self.depth = max(0, self.depth - 1)
+            if self.depth == 0:
+                _stats["seconds"] += time.perf_counter() - self.t0
+                self._draw(clear=True)
+
+    def status(self) -> str | None:
+        with _plock:
+            if self.depth == 0:
+                return None
+            return (f"compiling {self.name}, once: {len(_stats['compiled'])} kernels done,"
+                    f" {_stats['seconds'] + time.perf_counter() - self.t0:.0f} s")
+
+    def _draw(self, clear: bool = False) -> None:
+        tty = self._tty()
+        if tty is None:
+            return
+        try:
+            if clear:
+                if self.shown:
+                    tty.write("\r\033[K")
+                    self.shown = False
+            else:
+                tty.write(f"\r\033[Kilcnc: {self.status()}")
+                self.shown = True
+            tty.flush()
+        except (ValueError, OSError):  # pragma: no cover - the terminal went away
+            pass
+
+    def _tick(self) -> None:
+        while True:
+            time.sleep(0.5)
+            with _plock:
+                if self.depth > 0:
+                    self._draw()
+
+
+_progress = _Progress()
+
+
+def _install_compile_listener(numba: Any) -> None:
+    """Follow numba's ``numba:compile`` events: numba raises them only when it compiles (a cache miss)."""
+    try:
+        from numba.core import event
+    except ImportError:  # pragma: no cover - a numba without the event API: no notice
+        return
+
+    def name_of(ev: Any) -> str | None:
+        """``module.function`` of an ilcnc kernel; None for numba's own (its array and string functions)."""
+        disp = (ev.data or {}).get("dispatcher")
+        f = getattr(disp, "py_func", None)
+        mod = getattr(f, "__module__", "") or ""
+        if not (mod == "ilcnc" or mod.startswith("ilcnc.")):
+            return None
+        return f"{mod.removeprefix('ilcnc.')}.{getattr(f, '__name__', '?')}"
+
+    class _Listener(event.Listener):  # type: ignore[misc, name-defined]
+        def on_start(self, ev: Any) -> None:
+            _progress.start(name_of(ev))
+
+        def on_end(self, ev: Any) -> None:
+            _progress.end(name_of(ev))
+
+    event.register("numba:compile", _Listener())
 
 
 @njit(cache=True, nogil=True, inline="always")

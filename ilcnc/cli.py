@@ -310,6 +310,23 @@ def _simulate(prog, prof, orig, samples: bool, progress=None):
     return simulate_figures(prog, prof, against=orig, progress=progress)
 
 
+def _compile_column():
+    """A progress-bar column that shows what numba is compiling on the first run after install (else nothing)."""
+    from rich.progress import ProgressColumn
+    from rich.text import Text
+
+    from ilcnc._jit import compiling_now
+
+    class CompileColumn(ProgressColumn):
+        max_refresh = 0.5
+
+        def render(self, task):
+            now = compiling_now()
+            return Text("" if now is None else now, style="dim")
+
+    return CompileColumn()
+
+
 def _simulate_with_progress(prog, prof, orig, console, samples: bool):
     """Run the virtual CNC with a progress bar over its stages (shown on a terminal only)."""
     if not console.is_terminal:  # a live display off a terminal leaves a blank line before any error or table
@@ -317,7 +334,8 @@ def _simulate_with_progress(prog, prof, orig, console, samples: bool):
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     stages = ("plan", "drives", "errors", "contour")
-    with Progress(TextColumn("simulating: {task.description:<8}"), BarColumn(), TimeElapsedColumn(),
+    with Progress(TextColumn("simulating: {task.description:<8}"), BarColumn(bar_width=24), TimeElapsedColumn(),
+                  _compile_column(),
                   console=console, transient=True) as bar:
         task = bar.add_task("plan", total=len(stages))
 
@@ -448,7 +466,8 @@ def _learn_with_progress(learn_part, req, console):
         return learn_part(req, progress=line)
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    with Progress(TextColumn("learning: {task.description:<22}"), BarColumn(), TimeElapsedColumn(),
+    with Progress(TextColumn("learning: {task.description:<22}"), BarColumn(bar_width=24), TimeElapsedColumn(),
+                  _compile_column(),
                   console=console, transient=True) as bar:
         task = bar.add_task("iteration 0", total=None)
 
@@ -751,6 +770,42 @@ def _print_batch(results, console, out: Path) -> None:
         t.add_row(*row)
     console.print(t)
     console.print(f"summary: {out / 'summary.csv'}")
+
+
+@app.command()
+def selftest(
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Compile and cache the kernels of the usual commands, once after install (20-40 s; then ~1 s).
+
+    The first run after an install compiles ilcnc's numba kernels; run this as an install step so that no
+    real command pays for it. It simulates and learns a small built-in program on the built-in machine and
+    checks the figures are finite (exit 1 if not). Kernels of other drive models (friction, cross-coupled)
+    are compiled by their profile's first run.
+    """
+    import time
+
+    from ilcnc.shop.selftest import run_selftest
+
+    t0 = time.perf_counter()
+
+    def say(step: str) -> None:
+        if not as_json:
+            typer.echo(f"selftest: {step} ...", err=True)
+
+    res = run_selftest(progress=say)
+    wall = time.perf_counter() - t0
+    if as_json:
+        typer.echo(json.dumps({"ok": res.ok, "wall_s": wall, "compiled": res.compiled, "compile_s": res.compile_s,
+                               "steps": [{"step": n, "wall_s": s, "figure": f} for n, s, f in res.steps]}))
+    else:
+        for name, secs, figure in res.steps:
+            typer.echo(f"{name:28s} {secs:6.2f} s   {figure}")
+        cached = ("kernels were cached already" if not res.compiled else
+                  f"compiled {res.compiled} kernels in {res.compile_s:.1f} s (cached for the next runs)")
+        typer.echo(f"selftest {'ok' if res.ok else 'FAILED'} in {wall:.1f} s: {cached}")
+    if not res.ok:
+        raise typer.Exit(1)
 
 
 linuxcnc_app = typer.Typer(help="Run programs on LinuxCNC's own motion controller (headless) and log them.",

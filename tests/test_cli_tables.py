@@ -54,4 +54,6 @@ def test_learn_table_and_one_line_per_iteration_when_piped(tmp_path: Path) -> No
     assert res.exit_code == 0, res.output
     _fits(res.stdout)
     assert "31.09" in res.stdout
-    assert res.stderr.splitlines() == ["learning: iteration 0/1", "learning: iteration 1/1"]
+    # (a cold numba cache adds its one 'compiling' line: ilcnc._jit)
+    assert [ln for ln in res.stderr.splitlines() if ln.startswith("learning:")] == [
+        "learning: iteration 0/1", "learning: iteration 1/1"]

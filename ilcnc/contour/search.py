@@ -112,8 +112,8 @@ from ilcnc._jit import HAVE_NUMBA, njit, set_component
 from ilcnc.contour.path import TWO_PI, PathGeometry, WorkBuffers
 
 if HAVE_NUMBA:  # pragma: no cover - exercised by the environment, not by a test
-    from numba import types
-    from numba.extending import intrinsic
+    from ilcnc._jit import intrinsic  # numba's, made when the first kernel runs (start-up: issue 24)
+    from ilcnc._jit import numba_types as types
 
     @intrinsic
     def _bits_of(typingctx, x):

@@ -25,6 +25,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     'measure': ('Measurement', 'check_log_memory', 'interpolate_along_path', 'measure_log', 'measure_points'),
     'report': ('CommandDiff', 'MAX_PLOT_POINTS', 'REPORT_FILES', 'ReportRun', 'is_report_file', 'write_report'),
+    'selftest': ('SelftestResult', 'run_selftest'),
     'state': ('IterationEntry', 'LearnState', 'STATE_FILE', 'sha256_bytes', 'sha256_file', 'state_lock'),
     'workflow': ('LearnOutcome', 'LearnRequest', 'find_stamp', 'learn_part', 'stamp_text', 'unstamp_text'),
 }

@@ -14,7 +14,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import cont2discrete, ss2tf, tf2ss
 
 from ilcnc.errors import IlcncError
 from ilcnc.profile.sections import (
@@ -26,6 +25,7 @@ from ilcnc.profile.sections import (
     TransferFunctionDrive,
     has_position_loop,
 )
+from ilcnc.vcnc.lti import cont2discrete_zoh, ss2tf, tf2ss  # scipy.signal's, without its 1.5 s import
 
 __all__ = ["DELAY_SNAP", "FRICTION_SUBSTEP_S", "STANDSTILL_MM", "DiscreteModel", "DriveModelError", "discrete_model"]
 
@@ -137,8 +137,7 @@ def _ss_tf(phi: np.ndarray, g: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, n
 def zoh_discretize(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact ZOH discretisation ``(e^{A dt}, ∫_0^dt e^{Aσ}dσ·B)``; ``b`` is (n,) or (n, m)."""
     bb = b.reshape(a.shape[0], -1)
-    n = a.shape[0]
-    ad, bd, _, _, _ = cont2discrete((a, bb, np.zeros((1, n)), np.zeros((1, bb.shape[1]))), dt, method="zoh")
+    ad, bd = cont2discrete_zoh(a, bb, dt)  # scipy.signal.cont2discrete's A, B (ilcnc.vcnc.lti: start-up)
     return ad, (bd[:, 0] if b.ndim == 1 else bd)
 
 

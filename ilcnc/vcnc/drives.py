@@ -139,7 +139,6 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ilcnc._jit import HAVE_NUMBA, njit
 from ilcnc.errors import ProfileError
@@ -206,6 +205,8 @@ def filter_deviation(model: DiscreteModel, dev: np.ndarray) -> np.ndarray:
     step = np.diff(dev, prepend=dev[:1])
     y = g * dev
     if len(c):
+        from scipy.signal import lfilter  # the numpy path only: scipy.signal takes 1.5 s to import
+
         y = y + lfilter(c, aa, step)
     return _shift(y, model.delay_samples)
 

@@ -1,0 +1,240 @@
+"""Start-up (issue 24): what a command imports, numba on first use, the first run's notice, ``ilcnc selftest``.
+
+No test here is timed (``bench/startup.py`` times the commands); they check what makes the time: which heavy
+modules a command imports, that kernels wait for their first call, and that the conversions written out in
+:mod:`ilcnc.vcnc.lti` give SciPy's numbers bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from ilcnc.vcnc import discrete, lti
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
+
+
+def _run_python(code: str, **env: str) -> subprocess.CompletedProcess[str]:
+    import os
+
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, cwd=ROOT,
+                          env={**os.environ, **env}, timeout=300)
+
+
+# ---------------------------------------------------------------------------------------------
+# scipy.signal's conversions, written out (ilcnc.vcnc.lti)
+# ---------------------------------------------------------------------------------------------
+
+
+def _same(a: object, b: object) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b)
+
+
+def test_lti_conversions_are_scipys_bit_for_bit() -> None:
+    signal = pytest.importorskip("scipy.signal")
+    rng = np.random.default_rng(24)
+    for n in (1, 2, 3, 4, 6):
+        for _ in range(20):
+            den = np.concatenate([[rng.uniform(0.1, 5.0)], rng.uniform(-3.0, 3.0, n)])
+            num = rng.uniform(-2.0, 2.0, rng.integers(1, n + 1))
+            mine, theirs = lti.tf2ss(num, den), signal.tf2ss(num, den)
+            assert all(_same(x, y) for x, y in zip(mine, theirs, strict=True))
+            a, b, c, _ = theirs
+            d = np.zeros((1, 1))
+            for bb in (b, b[:, 0].reshape(-1, 1)):
+                mn, md = lti.ss2tf(a, bb, c, d)
+                tn, td = signal.ss2tf(a, bb, c, d)
+                assert _same(mn, tn) and _same(md, td)
+            for dt in (1e-3, 3.7e-4, 0.05):
+                for bcols in (b, np.column_stack([b, rng.uniform(-1, 1, (n, 1))])):
+                    ad, bd = lti.cont2discrete_zoh(a, bcols, dt)
+                    sad, sbd, _, _, _ = signal.cont2discrete(
+                        (a, bcols, np.zeros((1, n)), np.zeros((1, bcols.shape[1]))), dt, method="zoh")
+                    assert _same(ad, sad) and _same(bd, sbd)
+
+
+def test_lti_leading_zero_numerator_warns_and_trims_like_scipy() -> None:
+    signal = pytest.importorskip("scipy.signal")
+    num, den = np.array([0.0, 0.0, 2.0, 1.0]), np.array([1.0, 3.0, 2.0, 1.0])
+    with pytest.warns(lti.BadCoefficients):
+        mine = lti.tf2ss(num, den)
+    with pytest.warns(signal.BadCoefficients):
+        theirs = signal.tf2ss(num, den)
+    assert all(_same(x, y) for x, y in zip(mine, theirs, strict=True))
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=[c.stem for c in CONFIGS])
+def test_drive_models_of_every_shipped_profile_are_unchanged(config: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The discrete model of every drive of every shipped profile, with ilcnc.vcnc.lti and with scipy.signal."""
+    signal = pytest.importorskip("scipy.signal")
+    from ilcnc.profile.load import load_profile
+
+    prof = load_profile(config)
+    period = prof.machine.servo_period_s
+
+    def models() -> list[object]:
+        out: list[object] = []
+        for ax in prof.axes.values():
+            try:
+                m = discrete.discrete_model(ax.drive, period)
+            except discrete.DriveModelError:
+                out.append(None)
+                continue
+            out.append((m.b, m.a, m.dc_gain, m.delay_samples))
+            if discrete.has_position_loop(ax.drive) or type(ax.drive).__name__ == "PFfFrictionDrive":
+                p = discrete.loop_plant(ax.drive)
+                out.append(discrete.discretise(p.a, p.bu, p.c, period, p.delay_s).tf())
+        return out
+
+    mine = models()
+
+    def scipy_zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        ad, bd, _, _, _ = signal.cont2discrete((a, b, np.zeros((1, a.shape[0])), np.zeros((1, b.shape[1]))), dt,
+                                               method="zoh")
+        return ad, bd
+
+    monkeypatch.setattr(discrete, "cont2discrete_zoh", scipy_zoh)
+    monkeypatch.setattr(discrete, "ss2tf", signal.ss2tf)
+    monkeypatch.setattr(discrete, "tf2ss", signal.tf2ss)
+    theirs = models()
+    assert len(mine) == len(theirs)
+    for x, y in zip(mine, theirs, strict=True):
+        if x is None or y is None:
+            assert x is y
+            continue
+        assert all(_same(p, q) for p, q in zip(x, y, strict=True))
+
+
+# ---------------------------------------------------------------------------------------------
+# What a command imports
+# ---------------------------------------------------------------------------------------------
+
+
+def test_the_command_line_and_the_run_modules_import_neither_numba_nor_scipy_signal() -> None:
+    res = _run_python("""
+        import sys
+        import ilcnc.cli, ilcnc.vcnc.run, ilcnc.vcnc.stream, ilcnc.vcnc.simulate, ilcnc.vcnc.drives
+        import ilcnc.vcnc.plan, ilcnc.vcnc.plan_tp, ilcnc.vcnc.command_error, ilcnc.contour.search
+        import ilcnc.program.scan, ilcnc.learning.learner, ilcnc.shop.workflow, ilcnc.shop.inspect
+        from ilcnc.profile.load import default_profile
+        from ilcnc.vcnc.discrete import discrete_model
+        prof = default_profile()
+        for ax in prof.axes.values():
+            discrete_model(ax.drive, prof.machine.servo_period_s)
+        heavy = [m for m in ("numba", "scipy.signal", "matplotlib", "dask", "distributed", "rich.table")
+                 if m in sys.modules]
+        print(heavy)
+    """)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]"
+
+
+def test_inspect_runs_without_numba() -> None:
+    res = _run_python(f"""
+        import sys
+        from typer.testing import CliRunner
+        from ilcnc.cli import app
+        r = CliRunner().invoke(app, ["inspect", {str(ROOT / "samples" / "own" / "star.ngc")!r}, "--json"])
+        assert r.exit_code == 0, r.output
+        print("numba" in sys.modules, "scipy.signal" in sys.modules)
+    """)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["False", "False"]
+
+
+def test_kernels_wait_for_their_first_call_then_are_numbas_everywhere() -> None:
+    pytest.importorskip("numba")
+    res = _run_python("""
+        import sys
+        from ilcnc import _jit
+        from ilcnc.vcnc import plan_kernels
+        from ilcnc.contour import search
+        assert type(plan_kernels.group_kernel) is _jit.LazyKernel
+        assert plan_kernels.group_kernel.py_func.__name__ == "group_kernel"
+        assert "numba" not in sys.modules and not _jit.numba_loaded()
+        assert _jit.set_component(1.0, 2.0, 3.0, 1, 9.0) == (1.0, 9.0, 3.0)   # the first call loads numba
+        from numba.core.dispatcher import Dispatcher
+        assert _jit.numba_loaded()
+        for obj in (plan_kernels.group_kernel, search._k_chunk, search.set_component, _jit.set_component):
+            assert isinstance(obj, Dispatcher), obj
+        assert not isinstance(search._bits_of, _jit.LazyKernel)
+        assert search.types is sys.modules["numba"].types
+        made_later = _jit.njit(cache=False)(lambda x: x + 1)
+        assert isinstance(made_later, Dispatcher)
+        print("ok")
+    """)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "ok"
+
+
+def test_a_kernel_that_has_to_compile_says_so_once_on_stderr() -> None:
+    pytest.importorskip("numba")
+    res = _run_python("""
+        import json
+        from ilcnc import _jit
+
+        def f(n):
+            s = 0.0
+            for i in range(n):
+                s += i * 0.5
+            return s
+
+        def g(n):
+            return f(n) + 1.0
+
+        f.__module__ = g.__module__ = "ilcnc.fake"
+        kf = _jit.njit(cache=False)(f)
+        kg = _jit.njit(cache=False)(g)
+        g.__globals__["f"] = kf
+        assert kg(4) == 4.0 and kf(3) == 1.5
+        print(json.dumps(_jit.compile_stats()))
+    """)
+    assert res.returncode == 0, res.stderr
+    assert res.stderr.splitlines() == [_jit_notice()]
+    st = json.loads(res.stdout)
+    assert [name for name, _ in st["compiled"]] == ["fake.f", "fake.g"]  # f compiled inside g's compile
+    assert st["seconds"] > 0
+
+
+def _jit_notice() -> str:
+    from ilcnc._jit import COMPILE_NOTICE
+
+    return COMPILE_NOTICE
+
+
+# ---------------------------------------------------------------------------------------------
+# ilcnc selftest (the command's wiring; the work is the usual commands', tested where they are)
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("ok", [True, False])
+def test_selftest_command_reports_its_steps_and_fails_on_bad_figures(ok: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    from ilcnc.cli import app
+    from ilcnc.shop import selftest as st
+
+    def fake(progress=None):
+        if progress is not None:
+            progress("simulate (chunk by chunk)")
+        return st.SelftestResult(steps=[("simulate (chunk by chunk)", 0.5, "max 12.94 µm")], compiled=3,
+                                 compile_s=20.0, ok=ok)
+
+    monkeypatch.setattr(st, "run_selftest", fake)
+    r = CliRunner().invoke(app, ["selftest"])
+    assert r.exit_code == (0 if ok else 1), r.output
+    assert "simulate (chunk by chunk)" in r.output
+    assert ("selftest ok" if ok else "selftest FAILED") in r.output
+    assert "compiled 3 kernels in 20.0 s" in r.output
+    r = CliRunner().invoke(app, ["selftest", "--json"])
+    assert r.exit_code == (0 if ok else 1)
+    got = json.loads(r.stdout)
+    assert got["ok"] is ok and got["compiled"] == 3 and got["steps"][0]["figure"] == "max 12.94 µm"
