@@ -349,6 +349,8 @@ def test_schedule_on_the_standin(schedule_report: TuneReport) -> None:
     assert js["schedule"]["reduction"] == pytest.approx(r.reduction)
     assert js["schedule"]["within_limits_after"] is True and len(js["schedule"]["baseline_scan"]) == 21
     assert set(js["axes"]) == {"z"}
+    assert schedule_report.note == (f"schedule written to {schedule_report.schedule_csv}; C1: K_p 1.6, the best of 21"
+                                    " fixed gains (21 keep every axis within its V, A, J limits)")
 
 
 def test_schedule_cuts_mse_by_70_percent(schedule_report: TuneReport) -> None:
