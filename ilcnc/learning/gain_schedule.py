@@ -2,7 +2,7 @@
 
 ``schedule`` -- the receding-horizon offline gain adjustment of seed 001 (:func:`schedule_gains`)
     A per-servo-period position gain ``K_p`` of one axis, chosen at every
-    instant among ``K_{k−1} + ΔK`` by the cost ``J = ε̂ᵀε̂ + λ ΔK²`` of the
+    instant among ``K_{k−1} + ΔK`` by the cost ``J = ε̂ᵀε̂ + λ ΔK²`` (ε̂ in µm) of the
     contour error predicted over ``Np`` samples (eqs. 3-5) with the nonlinear
     (friction) axis model, kept in the stable range (eqs. 6-7) and within the
     kinematic limits (eqs. 8-10, with eq. 10's division by ``E_Z`` guarded). Np, λ, the ΔK
@@ -41,6 +41,9 @@ _KIN_MODES = {"none": 0, "predicted": 1, "eq10": 2}
 #: Seed 001's gain increments ΔK per period, (m/min)/mm: -0.05 to 0.05 in steps of 0.01 (the default of the
 #: profile key ``tuning.schedule.dk_candidates``).
 DEFAULT_DK = np.round(np.arange(-0.05, 0.051, 0.01), 12)
+#: λ of J = ε̂ᵀε̂ + λ ΔK² is given with ε̂ in µm (seed 001 prints its contour errors in µm, and only then is its
+#: λ = 0.01 "the same MSE" as λ = 0, Fig. 7.c); the kernel sums ε̂ in mm, so λ is scaled by 1 µm² / 1 mm².
+_LAM_MM2_PER_UM2 = 1e-6
 #: Reference segments searched on either side of the hint for the predicted contour error.
 _SCHEDULE_SEARCH = 20
 
@@ -131,6 +134,10 @@ def _schedule_kernel_py(dev, vref, r0, other, ai, pa, pb, hint, w, k0, kmin, kma
     loop taken as 1 and the division by ``E`` guarded) removes candidates, and
     when it removes all, the least violating one is taken. The best ``K`` is
     applied for one period. Gains in (m/min)/mm.
+
+    The cost is eq. 5, ``J = ε̂ᵀε̂ + λ·ΔK²``: ε̂ holds the Np contour errors (eq. 1) of the positions the
+    candidate gain produces, ``P̂(k+1) .. P̂(k+Np)`` (the position at k is already fixed when ``K_k`` is
+    chosen, so it adds the same to every candidate), and the caller passes ``lam`` scaled to ε̂ in mm.
     """
     n = dev.shape[0]
     ns = cq.shape[0]
@@ -144,6 +151,8 @@ def _schedule_kernel_py(dev, vref, r0, other, ai, pa, pb, hint, w, k0, kmin, kma
     kprev = k0
     qprev = 0.0
     qprev2 = 0.0
+    uprev = 0.0
+    uprev2 = 0.0
     nc = dks.shape[0]
     n_limited = 0
     n_infeasible = 0
@@ -156,6 +165,11 @@ def _schedule_kernel_py(dev, vref, r0, other, ai, pa, pb, hint, w, k0, kmin, kma
         ez = dev[k] - q
         d1 = q - qprev if k > 0 else 0.0
         d2 = qprev - qprev2 if k > 1 else 0.0
+        if mode == 2:
+            # eq. 9 takes the velocity loop as 1, so the stored displacements of eq. 8 are the commanded ones
+            # (u·T of the last two periods): eq. 10 then bounds the velocity command consistently
+            d1 = uprev * period if k > 0 else 0.0
+            d2 = uprev2 * period if k > 1 else 0.0
         # eq. 8: bounds of the next displacement from the limits and the stored displacements
         lo = max(-vmax * period, d1 - amax * period * period, 2.0 * d1 - d2 - jmax * period**3)
         hi = min(vmax * period, d1 + amax * period * period, 2.0 * d1 - d2 + jmax * period**3)
@@ -234,6 +248,8 @@ def _schedule_kernel_py(dev, vref, r0, other, ai, pa, pb, hint, w, k0, kmin, kma
         steps(x, xn, u, nsub, phih, guh, gfh, cv, bstick, fc, fbreak, vs, phis, gus)
         qprev2 = qprev
         qprev = q
+        uprev2 = uprev
+        uprev = u
     return kout, qout, n_limited, n_infeasible, n_guarded
 
 
@@ -285,9 +301,15 @@ class ScheduleResult:
         candidate (the least violating was taken), or (``eq10``) where the
         division by ``E`` was guarded.
     horizon, lam, dk, kp_range, kinematics :
-        The settings (``lam`` with ε in mm and ΔK in (m/min)/mm).
+        The settings (``lam`` with ε in µm and ΔK in (m/min)/mm).
     reference_mm, actual_before_mm, actual_after_mm : ndarray (N, 3)
         The runs.
+    baseline_scan : tuple of (float, float, bool)
+        With ``tuning.schedule.baseline_kp_m_min_mm``: every fixed gain tried for C1, its MSE (µm²) and
+        whether every axis stayed within its V, A, J limits; C1 is the feasible one of least MSE. Empty
+        when C1 is the drive's gain.
+    within_limits_before, within_limits_after : bool
+        Whether the actual motion of every axis stays within its V, A, J limits (C1, C2).
     elapsed_s : float
         Wall time of the optimisation, s.
     """
@@ -315,6 +337,9 @@ class ScheduleResult:
     reference_mm: NDArray[np.float64] = field(repr=False)
     actual_before_mm: NDArray[np.float64] = field(repr=False)
     actual_after_mm: NDArray[np.float64] = field(repr=False)
+    baseline_scan: tuple[tuple[float, float, bool], ...] = ()
+    within_limits_before: bool = True
+    within_limits_after: bool = True
     elapsed_s: float = 0.0
 
     @property
@@ -348,6 +373,10 @@ class ScheduleResult:
                              "limited": self.limited, "infeasible": self.infeasible, "guarded": self.guarded,
                              "horizon": self.horizon, "lam": self.lam, "dk": [float(x) for x in self.dk],
                              "kp_range": list(self.kp_range), "kinematics": self.kinematics,
+                             "baseline_scan": [{"kp": k, "mse_um2": m, "within_limits": ok}
+                                               for k, m, ok in self.baseline_scan],
+                             "within_limits_before": self.within_limits_before,
+                             "within_limits_after": self.within_limits_after,
                              "samples": int(self.t_s.size), "elapsed_s": self.elapsed_s}}
 
 
@@ -360,6 +389,21 @@ def _kinematics(pos: NDArray[np.float64], period: float, axis: Any) -> dict[str,
             "jerk_m_s3": float(np.max(np.abs(j))) / 1000.0 if j.size else 0.0,
             "limit_velocity_mm_s": axis.max_velocity_mm_s, "limit_acceleration_m_s2": axis.max_acceleration_m_s2,
             "limit_jerk_m_s3": axis.max_jerk_m_s3}
+
+
+def _within_limits(act: NDArray[np.float64], period: float, profile: MachineProfile) -> bool:
+    """Every defined axis's actual |velocity|, |acceleration|, |jerk| within its limits (the planner's check,
+    ``ilcnc.vcnc.plan.check_limits``, on the actual motion; 1e-9 relative for the float noise of differences)."""
+    for i, name in enumerate(AXIS_NAMES):
+        ax = profile.axes.get(name)
+        if ax is None:
+            continue
+        k = _kinematics(act[:, i], period, ax)
+        if (k["velocity_mm_s"] > ax.max_velocity_mm_s * (1 + 1e-9)
+                or k["acceleration_m_s2"] > ax.max_acceleration_m_s2 * (1 + 1e-9)
+                or k["jerk_m_s3"] > ax.max_jerk_m_s3 * (1 + 1e-9)):
+            return False
+    return True
 
 
 def schedule_gains(program: Any, profile: MachineProfile, *, axis: str | None = None,
@@ -386,18 +430,20 @@ def schedule_gains(program: Any, profile: MachineProfile, *, axis: str | None = 
     horizon : int, optional
         Np, servo periods (>= 1).
     lam : float, optional
-        λ of ``J = ε̂ᵀε̂ + λ ΔK²`` with ε̂ in mm and ΔK in (m/min)/mm (>= 0).
+        λ of ``J = ε̂ᵀε̂ + λ ΔK²`` (eq. 5) with ε̂ in µm and ΔK in (m/min)/mm (>= 0).
     dk : array_like, optional
         Candidate increments ΔK per period, (m/min)/mm. Where candidates cost the same (the gain
         cannot move the axis: at rest, or stuck in friction) the smallest |ΔK| is taken.
     kp0 : float, optional
-        Gain before the first period (default: the drive's ``kp_m_min_mm``), which is
-        also the fixed gain of the comparison run C1.
+        Gain before the first period, which is also the fixed gain of the comparison run C1. Default: the
+        best of ``tuning.schedule.baseline_kp_m_min_mm`` (seed 001 §4: the fixed gain of least contour-error
+        MSE among those that keep every axis within its V, A, J limits), else the drive's ``kp_m_min_mm``.
     kinematics : {"predicted", "eq10", "none"}, optional
         How the kinematic limits (V, A, J of the axis, eq. 2) restrict ΔK:
         ``predicted`` checks the displacement of the next period that the model
         predicts for the candidate; ``eq10`` is the paper's bound on ΔK from the
-        velocity command with the velocity loop taken as 1 (its division by
+        velocity command with the velocity loop taken as 1 (so eq. 8's stored
+        displacements are the commanded ``u·T`` of the last two periods; its division by
         ``E_Z`` is guarded: where ``E_Z`` is ~0 the gain cannot change the
         command and gives no bound; for ``E_Z < 0`` the bounds swap); ``none``.
 
@@ -440,7 +486,6 @@ def schedule_gains(program: Any, profile: MachineProfile, *, axis: str | None = 
         raise ValueError(f"horizon must be an integer >= 1, got {horizon}")
     if not (math.isfinite(lam) and lam >= 0):
         raise ValueError(f"lam must be >= 0, got {lam}")
-    k_fixed = float(drive.kp_m_min_mm if kp0 is None else kp0)
     period = profile.machine.servo_period_s
     ref = plan_program(program, profile)
     r = np.asarray(ref.pos_mm, dtype=np.float64)
@@ -467,18 +512,37 @@ def schedule_gains(program: Any, profile: MachineProfile, *, axis: str | None = 
 
     def run(k_start: float, lo: float, hi: float, cands: NDArray[np.float64], npred: int, mode: int) -> tuple:
         return kern(np.ascontiguousarray(dev), np.ascontiguousarray(vref), float(r[0, ai]), other, ai, pa, pb, hint,
-                    _SCHEDULE_SEARCH, k_start, lo, hi, cands, float(lam), int(npred), period, *common, mode, *plant,
+                    _SCHEDULE_SEARCH, k_start, lo, hi, cands, float(lam) * _LAM_MM2_PER_UM2, int(npred), period,
+                    *common, mode, *plant,
                     dist, steps)
 
-    _k1, q1, *_ = run(k_fixed, k_fixed, k_fixed, np.zeros(1), 0, 0)
+    mv = np.maximum(np.asarray(ref.move, dtype=np.int64), 0)
+    feed = (np.asarray(ref.move) >= 0) & (program.moves.kind[mv] != MOVE_RAPID)
+
+    def fixed_run(kf: float) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        """C1 with the scheduled axis's gain fixed at ``kf``: its motion, every axis's, its MSE (µm²)."""
+        _k, q, *_ = run(kf, kf, kf, np.zeros(1), 0, 0)
+        act = act1.copy()
+        act[:, ai] = r[0, ai] + q
+        d = np.where(feed, contour_error(poly, act, hint).dist_mm, np.nan)
+        return q, act, float(np.nanmean(d**2)) * 1e6
+
+    scan: list[tuple[float, float, bool]] = []
+    if kp0 is None and cfg.baseline_kp_m_min_mm is not None:
+        for kf in cfg.baseline_kp_m_min_mm:
+            _q, act, mse = fixed_run(float(kf))
+            scan.append((float(kf), mse, _within_limits(act, period, profile)))
+        ok = [s for s in scan if s[2]] or scan  # none within the limits: the least MSE, reported as such
+        k_fixed = min(ok, key=lambda s: s[1])[0]
+    else:
+        k_fixed = float(drive.kp_m_min_mm if kp0 is None else kp0)
+    q1, _act, _mse = fixed_run(k_fixed)
     start = min(max(k_fixed, kmin), kmax)
     k2, q2, limited, infeasible, guarded = run(start, kmin, kmax, dks, int(horizon), _KIN_MODES[kinematics])
     before = act1.copy()
     before[:, ai] = r[0, ai] + q1
     after = act1.copy()
     after[:, ai] = r[0, ai] + q2
-    mv = np.maximum(np.asarray(ref.move, dtype=np.int64), 0)
-    feed = (np.asarray(ref.move) >= 0) & (program.moves.kind[mv] != MOVE_RAPID)
     path = PathGeometry.from_moves(program.moves)
 
     def stats(act: NDArray[np.float64]) -> tuple[float, float, float]:
@@ -494,6 +558,7 @@ def schedule_gains(program: Any, profile: MachineProfile, *, axis: str | None = 
                           m1, m2, x1, x2, p1, p2, _kinematics(before[:, ai], period, ax_prof),
                           _kinematics(after[:, ai], period, ax_prof), int(limited), int(infeasible), int(guarded),
                           int(horizon), float(lam), dks, (kmin, kmax), kinematics, r, before, after,
+                          tuple(scan), _within_limits(before, period, profile), _within_limits(after, period, profile),
                           time.perf_counter() - t0)
 
 

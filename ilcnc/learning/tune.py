@@ -251,13 +251,21 @@ def tune_profile(profile_path: str | Path, *, method: str = "auto", program: Any
         sch = schedule_gains(prog, profile, axis=axis, kp_range=kp_range, horizon=horizon, lam=lam, dk=dk,
                              kinematics=kinematics)
         report.result = sch
+        notes = []
+        if sch.baseline_scan:
+            n_ok = sum(ok for _k, _m, ok in sch.baseline_scan)
+            notes.append(f"C1: K_p {sch.kp_fixed:g}, the best of {len(sch.baseline_scan)} fixed gains ({n_ok} keep every"
+                         " axis within its V, A, J limits)")
+        if not sch.within_limits_after:
+            notes.append("C2 takes an axis beyond its V, A, J limits")
         if write:
             if schedule_csv is None:
                 base = prog_path if prog_path is not None else Path("program")
                 schedule_csv = base.with_name(f"{base.stem}.kp-{sch.axis}.csv")
             protect = [ppath] + ([prog_path] if prog_path else [])
             report.schedule_csv = sch.write_csv(schedule_csv, protect=protect)
-            report.note = f"schedule written to {report.schedule_csv}"
+            notes.insert(0, f"schedule written to {report.schedule_csv}")
+        report.note = "; ".join(notes)
         return report
     if write and report.updates:
         from ilcnc.profile.edit import update_profile

@@ -860,9 +860,10 @@ SPECS: tuple[Spec, ...] = (
     ),
     _f(
         "tuning.schedule.lambda",
-        "Weight λ of the gain increment in J = ε̂ᵀε̂ + λ·ΔK², with ε̂ in mm and ΔK in (m/min)/mm (seed 001:"
-        " λ = 0.01; the paper gives no units); 0: no penalty.",
-        "mm²/((m/min)/mm)²",
+        "Weight λ of the gain increment in J = ε̂ᵀε̂ + λ·ΔK², with ε̂ in µm and ΔK in (m/min)/mm (seed 001:"
+        " λ = 0.01; the paper gives no units, but only with ε̂ in µm is its λ = 0.01 \"the same MSE\" as λ = 0);"
+        " 0: no penalty.",
+        "µm²/((m/min)/mm)²",
         0,
         1e6,
         default=0.01,
@@ -897,11 +898,25 @@ SPECS: tuple[Spec, ...] = (
         lo_open=True,
         default=2.7,
     ),
+    Spec(
+        "tuning.schedule.baseline_kp_m_min_mm",
+        "numbers",
+        "The fixed gains of the scheduled axis tried for the comparison run C1 (seed 001 §4: the best fixed gain,"
+        " the smallest contour-error MSE, among the stable gains whose actual motion keeps every axis within its"
+        " V, A, J limits; the paper tries steps of 0.1); C2 starts from that gain. Absent: C1 is the drive's"
+        " kp_m_min_mm.",
+        unit="(m/min)/mm",
+        default=None,
+        lo=0,
+        hi=100,
+        lo_open=True,
+        default_doc="the drive's kp_m_min_mm",
+    ),
     _c(
         "tuning.schedule.kinematics",
         "How the axis's V, A, J limits restrict ΔK (eqs. 8-10): predicted (the next displacement the model"
-        " predicts for the candidate), eq10 (the paper's bound with the velocity loop taken as 1, its division by"
-        " E_Z guarded) or none.",
+        " predicts for the candidate), eq10 (the paper's bound with the velocity loop taken as 1: eq. 8's stored"
+        " displacements are the commanded ones, its division by E_Z guarded) or none.",
         ("predicted", "eq10", "none"),
         default="predicted",
     ),

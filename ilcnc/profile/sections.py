@@ -645,13 +645,15 @@ class ScheduleTuning:
     horizon_samples : int
         Prediction horizon Np, servo periods.
     lam : float
-        λ of ``J = ε̂ᵀε̂ + λ ΔK²`` (ε̂ in mm, ΔK in (m/min)/mm); YAML key ``lambda``.
+        λ of ``J = ε̂ᵀε̂ + λ ΔK²`` (ε̂ in µm, ΔK in (m/min)/mm); YAML key ``lambda``.
     dk_candidates : tuple of float
         Gain increments ΔK tried per period, (m/min)/mm (distinct, 0 among them).
     kp_min_m_min_mm, kp_max_m_min_mm : float
         Gain range, (m/min)/mm, min < max.
     kinematics : str
         ``"predicted"``, ``"eq10"`` or ``"none"``.
+    baseline_kp_m_min_mm : tuple of float or None
+        Fixed gains tried for the comparison run C1 (the best feasible one is C1); ``None``: the drive's gain.
     """
 
     axis: str | None = default_of("tuning.schedule.axis")
@@ -661,6 +663,7 @@ class ScheduleTuning:
     kp_min_m_min_mm: float = default_of("tuning.schedule.kp_min_m_min_mm")
     kp_max_m_min_mm: float = default_of("tuning.schedule.kp_max_m_min_mm")
     kinematics: str = default_of("tuning.schedule.kinematics")
+    baseline_kp_m_min_mm: tuple[float, ...] | None = default_of("tuning.schedule.baseline_kp_m_min_mm")
 
     @property
     def kp_range(self) -> tuple[float, float]:
@@ -673,6 +676,8 @@ class ScheduleTuning:
         out.update({"horizon_samples": self.horizon_samples, "lambda": self.lam,
                     "dk_candidates": list(self.dk_candidates), "kp_min_m_min_mm": self.kp_min_m_min_mm,
                     "kp_max_m_min_mm": self.kp_max_m_min_mm, "kinematics": self.kinematics})
+        if self.baseline_kp_m_min_mm is not None:
+            out["baseline_kp_m_min_mm"] = list(self.baseline_kp_m_min_mm)
         return out
 
 
