@@ -153,6 +153,42 @@ def export(
                f"{result.edits} numbers rewritten)")
 
 
+@app.command()
+def diff(
+    original: Annotated[Path, typer.Argument(help="The original part program.")],
+    output: Annotated[Path, typer.Argument(help="An ilcnc output of it (learn --out, export --corrections).")],
+    profile: Annotated[
+        Path | None, typer.Option("--profile", help="Machine profile (units of a G-code program without G20/G21).")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object (numbers in full).")] = False,
+) -> None:
+    """List what OUTPUT changed in ORIGINAL: each changed line with its end point's correction in µm (ΔX ΔY ΔZ,
+    output minus original, as the interpreter reads both) and the coordinate, arc centre and feed words that
+    changed; the lines refinement inserted; a summary.
+
+    Lines are matched through the program model (inserted lines by their 'ilcnc refine' marker, Klartext
+    block numbers renumbered by refinement are no change). Anything changed besides coordinate numbers, arc
+    centres, feeds and marked inserted lines breaks ilcnc's rewriting contract and is printed after a line
+    starting CONTRACT BREACH. Exit 0 when the diff was computed (also with a breach), 1 for a program that
+    cannot be read, 2 for bad usage.
+    """
+    from ilcnc.shop import diff as diff_mod
+
+    try:
+        units = "mm"
+        if profile is not None:
+            from ilcnc.profile.load import load_profile
+
+            units = load_profile(profile).machine.units
+        result = diff_mod.diff_files(original, output, default_units=units)
+    except IlcncError as exc:
+        _fail(exc)
+    if as_json:
+        typer.echo(json.dumps(result.to_json()))
+        return
+    typer.echo("\n".join(diff_mod.format_diff(result)))
+
+
 _CUTTING_BELOW_Z_HELP = ("Stock top, mm in program coordinates: feed moves entirely above it are air moves, reported"
                          " apart and not corrected (default: the profile's cutting.top_z_mm, else work Z0 where the"
                          " program cuts below it).")

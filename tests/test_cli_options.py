@@ -43,6 +43,7 @@ def _base(command: str, tmp: Path) -> list[str]:
     star = str(OWN / "star.ngc")
     return {
         "inspect": ["inspect", star],
+        "diff": ["diff", star, star],
         "export": ["export", star, "--out", str(tmp / "x.ngc")],
         "simulate": ["simulate", star, "--profile", str(MILL)],
         "learn": ["learn", star, "--profile", str(MILL), "--out", str(tmp / "o.ngc"), "--iterations", "1"],

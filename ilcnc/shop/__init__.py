@@ -10,6 +10,10 @@ from ilcnc._lazy import lazy_exports
 _EXPORTS: dict[str, tuple[str, ...]] = {
     'batch': ('BatchJob', 'PartResult', 'jobs_from_path', 'run_batch', 'summary_csv'),
     'corrections': ('read_corrections', 'write_corrections'),
+    'diff': (
+        'ChangedLine', 'DiffInserted', 'ProgramDiff', 'WORD_KINDS', 'WordChange', 'diff_files', 'diff_programs',
+        'format_diff'
+    ),
     'export': ('ExportResult', 'export_program', 'output_family'),
     'fidelity': ('Fidelity', 'TARGET_CORRELATION', 'TARGET_DIFFERENCE', 'compare_signals', 'fidelity_of_log'),
     'inspect': ('InspectReport', 'command_table_csv', 'inspect_program', 'print_report'),
