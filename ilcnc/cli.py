@@ -1,7 +1,8 @@
 """Command line: thin typer commands that parse options, call the library and print.
 
 Exit codes: 0 success, 1 bad input (one line naming file, line and problem),
-2 bad usage. ``--debug`` shows the traceback of an error.
+2 bad usage; ``check`` over many programs also 3 for a program it cannot read
+(its --help). ``--debug`` shows the traceback of an error.
 """
 
 from __future__ import annotations

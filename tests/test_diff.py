@@ -164,6 +164,18 @@ def test_klartext_renumbered_blocks_are_no_change(tmp_path: Path) -> None:
     assert d["summary"]["renumbered"] == d["lines_output"] - first - len(d["inserted"]) + 1
     assert d["summary"]["lines_changed"] == d["summary"]["lines_corrected"] == 3
     assert all(len(c["words"]) == 1 and c["words"][0]["kind"] == "axis" for c in d["changed"])
+    assert d["summary"]["stamp"] is False
+
+
+def test_the_provenance_stamp_is_no_change(tmp_path: Path) -> None:
+    orig = OWN / "square.h"
+    plain = _learn(orig, tmp_path / "plain.h", "--refine", "--iterations", "2")
+    stamped = _learn(orig, tmp_path / "stamped.h", "--refine", "--iterations", "2", "--stamp")
+    assert "ilcnc: learned from square.h" in stamped.read_text().splitlines()[0]
+    a, b = _diff_json(orig, plain), _diff_json(orig, stamped)
+    assert b["summary"]["stamp"] is True and b["summary"]["only_coordinates"]
+    assert [c["delta_um"] for c in a["changed"]] == [c["delta_um"] for c in b["changed"]]
+    assert len(a["inserted"]) == len(b["inserted"])
 
 
 def test_a_change_besides_coordinates_is_a_loud_breach(tmp_path: Path) -> None:
