@@ -1,7 +1,8 @@
 """Command line: thin typer commands that parse options, call the library and print.
 
 Exit codes: 0 success, 1 bad input (one line naming file, line and problem),
-2 bad usage. ``--debug`` shows the traceback of an error.
+2 bad usage; ``check`` over many programs also 3 for a program it cannot read
+(its --help). ``--debug`` shows the traceback of an error.
 """
 
 from __future__ import annotations
@@ -162,6 +163,42 @@ def export(
         typer.echo(f"note: {result.note}", err=True)
     typer.echo(f"wrote {result.path} ({result.mode}; {result.changed_commands} commands corrected, "
                f"{result.edits} numbers rewritten)")
+
+
+@app.command()
+def diff(
+    original: Annotated[Path, typer.Argument(help="The original part program.")],
+    output: Annotated[Path, typer.Argument(help="An ilcnc output of it (learn --out, export --corrections).")],
+    profile: Annotated[
+        Path | None, typer.Option("--profile", help="Machine profile (units of a G-code program without G20/G21).")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object (numbers in full).")] = False,
+) -> None:
+    """List what OUTPUT changed in ORIGINAL: each changed line with its end point's correction in µm (ΔX ΔY ΔZ,
+    output minus original, as the interpreter reads both) and the coordinate, arc centre and feed words that
+    changed; the lines refinement inserted; a summary.
+
+    Lines are matched through the program model (inserted lines by their 'ilcnc refine' marker, Klartext
+    block numbers renumbered by refinement are no change). Anything changed besides coordinate numbers, arc
+    centres, feeds and marked inserted lines breaks ilcnc's rewriting contract and is printed after a line
+    starting CONTRACT BREACH. Exit 0 when the diff was computed (also with a breach), 1 for a program that
+    cannot be read, 2 for bad usage.
+    """
+    from ilcnc.shop import diff as diff_mod
+
+    try:
+        units = "mm"
+        if profile is not None:
+            from ilcnc.profile.load import load_profile
+
+            units = load_profile(profile).machine.units
+        result = diff_mod.diff_files(original, output, default_units=units)
+    except IlcncError as exc:
+        _fail(exc)
+    if as_json:
+        typer.echo(json.dumps(result.to_json()))
+        return
+    typer.echo("\n".join(diff_mod.format_diff(result)))
 
 
 _CUTTING_BELOW_Z_HELP = ("Stock top, mm in program coordinates: feed moves entirely above it are air moves, reported"
@@ -643,16 +680,66 @@ def tune(
         console.print(f"wrote {report.schedule_csv}")
 
 
-@app.command()
+_CHECK_HELP = "\n\n".join((
+    "Gate programs in CI: exit non-zero when the simulated contour error of a program's cutting moves exceeds a"
+    " threshold or regressed against a stored baseline.",
+    "PROGRAMS are files (shell globs expand to many) or folders: a folder's program files by the rule of ilcnc"
+    " batch (.nc .ngc .tap .gcode .gc .cnc .h, sorted). Each runs once on the virtual CNC of --profile; its"
+    " cutting moves' max and RMS contour error and its cycle time are judged against --max-error / --max-rms"
+    " and, with --baseline, against the figures stored there: a figure regresses when it grew by more than"
+    " --tolerance-um (errors; default the profile's machine.resolution_mm, the least step the control makes) or"
+    " --tolerance-s (cycle time; default one servo period, the step of the run's clock).",
+    "--update-baseline writes this run's figures to the baseline (atomically; regressions are then reported,"
+    " not failed). --junit FILE writes JUnit XML: one testcase per program, a failure naming each figure that"
+    " failed or regressed.",
+    "Exit codes: 0 every program passed; 1 a program failed a threshold or regressed against the baseline;"
+    " 2 bad usage; 3 a program could not be read (the others are still judged and reported), or the profile or"
+    " the baseline could not be read. One program with --max-error alone is the single-program gate of earlier"
+    " releases, unchanged: there a program that cannot be read exits 1. Example for CI: docs/ci.md.",
+))
+
+
+@app.command(help=_CHECK_HELP)
 def check(
-    program: Annotated[Path, typer.Argument(help="Part program to check on the virtual CNC.")],
+    ctx: typer.Context,
+    programs: Annotated[list[Path], typer.Argument(help="Part programs or folders of them to check.")],
     profile: Annotated[Path, typer.Option("--profile", help="Machine profile YAML.")],
-    max_error: Annotated[float, typer.Option("--max-error", min=0.0, help="Largest allowed contour error, mm.")],
+    max_error: Annotated[
+        float | None, typer.Option("--max-error", min=0.0, help="Largest allowed contour error, mm (needed"
+                                   " unless --baseline is given).")
+    ] = None,
     max_rms: Annotated[float | None, typer.Option("--max-rms", min=0.0, help="Largest allowed RMS contour error, mm.")] = None,
     cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
+    baseline: Annotated[
+        Path | None, typer.Option("--baseline", help="Baseline JSON: each program's max, RMS and cycle time of an"
+                                  " earlier run to compare against.")
+    ] = None,
+    update_baseline: Annotated[
+        bool, typer.Option("--update-baseline", help="Write this run's figures to --baseline (atomically).")
+    ] = False,
+    tolerance_um: Annotated[
+        float | None, typer.Option("--tolerance-um", min=0.0, help="How much a program's max or RMS contour error"
+                                   " may grow over the baseline, µm (default: the profile's machine.resolution_mm).")
+    ] = None,
+    tolerance_s: Annotated[
+        float | None, typer.Option("--tolerance-s", min=0.0, help="How much a program's cycle time may grow over"
+                                   " the baseline, s (default: the profile's machine.servo_period_s).")
+    ] = None,
+    junit: Annotated[Path | None, typer.Option("--junit", help="Write a JUnit XML report here.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Exit 1 when the simulated contour error of PROGRAM's cutting moves exceeds a threshold (a CI regression gate)."""
+    if max_error is None and baseline is None:
+        from typer._click.exceptions import MissingParameter
+
+        param = next(p for p in ctx.command.params if p.name == "max_error")
+        raise MissingParameter(ctx=ctx, param=param)
+    gate = (baseline is not None or junit is not None or update_baseline or tolerance_um is not None
+            or tolerance_s is not None or len(programs) != 1 or programs[0].is_dir())
+    if gate:
+        _check_gate(programs, profile, max_error, max_rms, cutting_below_z, baseline, update_baseline, tolerance_um,
+                    tolerance_s, junit, as_json)
+        return
+    program = programs[0]
     from ilcnc.profile.load import load_profile
     from ilcnc.program import read_program
 
@@ -684,6 +771,103 @@ def check(
                    f" (air moves apart: max {air['max']:.4f} mm; {result.cutting.describe()})")
     if over:
         raise typer.Exit(1)
+
+
+#: ``ilcnc check``'s exit code when a program (or the profile or baseline) could not be read.
+CHECK_UNREADABLE_EXIT = 3
+
+
+def _check_gate(programs: list[Path], profile: Path, max_error: float | None, max_rms: float | None,
+                cutting_below_z: float | None, baseline: Path | None, update_baseline: bool,
+                tolerance_um: float | None, tolerance_s: float | None, junit: Path | None, as_json: bool) -> None:
+    """``ilcnc check`` over many programs, against a baseline, with a JUnit report (:mod:`ilcnc.shop.gate`)."""
+    import textwrap
+
+    from ilcnc.fileio import same_file, write_atomic
+    from ilcnc.outcomes import CheckStatus
+    from ilcnc.profile.load import load_profile
+    from ilcnc.shop import gate as gate_mod
+    from ilcnc.shop.state import sha256_file
+
+    try:
+        if update_baseline and baseline is None:
+            raise UsageError("--update-baseline", "needs --baseline FILE (the file to write)")
+        for opt, val in (("--max-error", max_error), ("--max-rms", max_rms), ("--tolerance-um", tolerance_um),
+                         ("--tolerance-s", tolerance_s)):
+            _finite(opt, val, lo=0.0)
+    except IlcncError as exc:
+        _fail(exc)
+    try:
+        prof = load_profile(profile).with_cutting_top(cutting_below_z)
+        paths = gate_mod.expand_programs(programs)
+        for opt, dest in (("--junit", junit), ("--baseline", baseline if update_baseline else None)):
+            if dest is None:
+                continue
+            if any(same_file(dest, p) for p in (*paths, profile)):
+                raise UsageError(opt, f"{dest} is an input of this check; choose another file")
+            if not (dest.parent if str(dest.parent) else Path(".")).is_dir():
+                raise UsageError(opt, f"{dest}: folder {dest.parent} does not exist")
+        old = None
+        if baseline is not None and (not update_baseline or baseline.exists()):
+            old = gate_mod.read_baseline(baseline)
+    except IlcncError as exc:
+        if _state["debug"]:
+            raise
+        typer.echo(f"error: {exc.format()}", err=True)
+        raise typer.Exit(exc.exit_code if isinstance(exc, UsageError) else CHECK_UNREADABLE_EXIT) from None
+    tol_mm = prof.machine.resolution_mm if tolerance_um is None else tolerance_um * 1e-3
+    tol_s = prof.machine.servo_period_s if tolerance_s is None else tolerance_s
+    results = []
+    for p in paths:
+        r = gate_mod.check_program(p, prof)
+        entry = None if old is None else old.programs.get(r.name)
+        gate_mod.judge(r, max_error_mm=max_error, max_rms_mm=max_rms, baseline=entry, tolerance_mm=tol_mm,
+                       tolerance_s=tol_s)
+        if old is not None and entry is None and r.status is not CheckStatus.UNREADABLE:
+            r.notes.append("not in the baseline" + ("" if update_baseline else " (--update-baseline adds it)"))
+        if update_baseline:  # the new baseline is this run: a regression is reported, not failed
+            kept = [f for f in r.failures if "regressed" not in f]
+            r.notes += [f"{f} (baseline updated)" for f in r.failures if "regressed" in f]
+            r.failures = kept
+        results.append(r)
+    protect = (*paths, profile)
+    try:
+        if update_baseline:
+            assert baseline is not None
+            gate_mod.write_baseline(baseline, results, previous=old, profile=profile, profile_sha256=sha256_file(profile),
+                                    protect=protect)
+        if junit is not None:
+            write_atomic(junit, gate_mod.junit_xml(results), protect=protect)
+    except IlcncError as exc:
+        _fail(exc)
+    n_bad = sum(r.status is CheckStatus.UNREADABLE for r in results)
+    n_fail = sum(r.status is CheckStatus.FAILED for r in results)
+    code = CHECK_UNREADABLE_EXIT if n_bad else (1 if n_fail else 0)
+    if as_json:
+        typer.echo(json.dumps({"programs": [r.to_json() for r in results], "passed": code == 0, "exit_code": code,
+                               "baseline": None if baseline is None else str(baseline),
+                               "baseline_updated": update_baseline, "tolerance_mm": tol_mm, "tolerance_s": tol_s,
+                               "max_error_mm": max_error, "max_rms_mm": max_rms,
+                               "junit": None if junit is None else str(junit)}))
+    else:
+        word = {CheckStatus.PASSED: "pass", CheckStatus.FAILED: "FAIL", CheckStatus.UNREADABLE: "ERROR"}
+        for r in results:
+            head = f"{word[r.status]:<5} " + ("" if r.status is CheckStatus.UNREADABLE else f"{r.name}: ")
+            body = gate_mod.figures_line(r).split("\n")
+            lines = [head + body[0], *body[1:], *r.failures]
+            for i, ln in enumerate(lines):
+                typer.echo("\n".join(textwrap.wrap(ln, 80, initial_indent="" if i == 0 else "      ",
+                                                   subsequent_indent="      ", break_on_hyphens=False)))
+        n = len(results)
+        summary = (f"check: {n} program{'' if n == 1 else 's'}: {n - n_fail - n_bad} passed, {n_fail} failed,"
+                   f" {n_bad} unreadable (tolerance {tol_mm * 1e3:g} µm, {tol_s:g} s)")
+        if update_baseline:
+            summary += f"; wrote baseline {baseline}"
+        if junit is not None:
+            summary += f"; wrote {junit}"
+        typer.echo("\n".join(textwrap.wrap(summary, 80, subsequent_indent="  ")))
+    if code:
+        raise typer.Exit(code)
 
 
 @app.command()

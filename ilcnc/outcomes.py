@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from enum import Enum
 
-__all__ = ["GuardVerdict", "LearnMode", "LearnStatus", "LiftedStatus", "ModelStepEnd", "PartStatus", "StrEnum"]
+__all__ = ["CheckStatus", "GuardVerdict", "LearnMode", "LearnStatus", "LiftedStatus", "ModelStepEnd", "PartStatus", "StrEnum"]
 
 
 class StrEnum(str, Enum):
@@ -87,3 +87,11 @@ class GuardVerdict(StrEnum):
 
     HALVED = "halved"  #: not kept; the next iteration starts from the best one with the gain halved
     STOPPED = "stopped"  #: it grew again with the gain halved: learning stops, the best iteration is the output
+
+
+class CheckStatus(StrEnum):
+    """What ``ilcnc check``'s gate says about one program (its exit code: ``ilcnc check --help``)."""
+
+    PASSED = "passed"  #: every threshold and baseline figure kept
+    FAILED = "failed"  #: over a threshold, no cutting move, or regressed against the baseline
+    UNREADABLE = "unreadable"  #: the program could not be read or run (an error line says why)

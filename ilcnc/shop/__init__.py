@@ -8,10 +8,18 @@ that owns a name.
 from ilcnc._lazy import lazy_exports
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
-    'batch': ('BatchJob', 'PartResult', 'jobs_from_path', 'run_batch', 'summary_csv'),
+    'batch': ('BatchJob', 'PartResult', 'folder_programs', 'jobs_from_path', 'run_batch', 'summary_csv'),
     'corrections': ('read_corrections', 'write_corrections'),
+    'diff': (
+        'ChangedLine', 'DiffInserted', 'ProgramDiff', 'WORD_KINDS', 'WordChange', 'diff_files', 'diff_programs',
+        'format_diff'
+    ),
     'export': ('ExportResult', 'export_program', 'output_family'),
     'fidelity': ('Fidelity', 'TARGET_CORRELATION', 'TARGET_DIFFERENCE', 'compare_signals', 'fidelity_of_log'),
+    'gate': (
+        'BASELINE_FORMAT', 'Baseline', 'ProgramCheck', 'check_program', 'expand_programs',
+        'figures_line', 'judge', 'junit_xml', 'read_baseline', 'write_baseline'
+    ),
     'inspect': ('InspectReport', 'command_table_csv', 'inspect_program', 'print_report'),
     'linuxcnc': (
         'DEFAULT_CONFIG_DIR', 'DEFAULT_LOCK_TIMEOUT_S', 'LinuxCNCBusyError', 'LockHolder', 'MAX_TIME_SCALE',

@@ -36,7 +36,7 @@ from ilcnc.errors import IlcncError, InputError
 from ilcnc.fileio import inside, read_bytes, write_atomic
 from ilcnc.outcomes import PartStatus
 
-__all__ = ["BatchJob", "PartResult", "jobs_from_path", "run_batch", "summary_csv"]
+__all__ = ["BatchJob", "PartResult", "folder_programs", "jobs_from_path", "run_batch", "summary_csv"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,6 +111,22 @@ def _profile_list(src: Path, key: str, value: object) -> list[str]:
     raise InputError(src, None, f"{key}: must be a profile file name or a list of them, got {_short(value)}")
 
 
+def folder_programs(folder: str | Path) -> list[Path]:
+    """The part programs of a folder: its files with a program suffix (``.nc .ngc .tap .gcode .gc .cnc .h``),
+    sorted by name (``ilcnc batch`` and ``ilcnc check`` take a folder by this rule).
+
+    Raises
+    ------
+    InputError
+        The folder holds none.
+    """
+    src = Path(folder)
+    progs = sorted(p for p in src.iterdir() if p.is_file() and p.suffix.lower() in _PROGRAM_SUFFIXES)
+    if not progs:
+        raise InputError(src, None, f"no part programs ({', '.join(_PROGRAM_SUFFIXES)}) in this folder")
+    return progs
+
+
 def jobs_from_path(source: str | Path, profile: str | Path | None, out_dir: str | Path, *,
                    iterations: int | None = None, allow_outside: bool = False) -> list[BatchJob]:
     """The jobs of a folder (every program file in it, sorted) or of a manifest.
@@ -131,9 +147,7 @@ def jobs_from_path(source: str | Path, profile: str | Path | None, out_dir: str 
     if src.is_dir():
         if profile is None:
             raise InputError(src, None, "a folder of programs needs --profile")
-        progs = sorted(p for p in src.iterdir() if p.is_file() and p.suffix.lower() in _PROGRAM_SUFFIXES)
-        if not progs:
-            raise InputError(src, None, f"no part programs ({', '.join(_PROGRAM_SUFFIXES)}) in this folder")
+        progs = folder_programs(src)
         jobs = [_job(p, Path(profile), out, iterations, False) for p in progs]
     else:
         text = read_bytes(src).decode("utf-8", errors="replace")
