@@ -118,3 +118,12 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
             return "linuxcnc" if nodeid.startswith("tests/integration/") else nodeid
 
     return _LinuxCNCInOneWorker(config, log)
+
+
+def cli_output(res: Any) -> str:
+    """What a CLI call printed (stdout and stderr) without the line ilcnc says when numba compiles on a cold cache
+    (:data:`ilcnc._jit.COMPILE_NOTICE`, once per process): a test of an error message judges the message, whichever
+    test of the process happened to compile first."""
+    from ilcnc._jit import COMPILE_NOTICE
+
+    return "".join(ln for ln in res.output.splitlines(keepends=True) if not ln.startswith(COMPILE_NOTICE))

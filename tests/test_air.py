@@ -69,7 +69,7 @@ def test_a_program_with_work_z0_on_the_table_counts_every_feed_as_cutting() -> N
 def test_simulate_reports_cutting_first_and_air_apart() -> None:
     res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(SEED004), "--json"])
     assert res.exit_code == 0, res.output
-    data = json.loads(res.output)
+    data = json.loads(res.stdout)
     assert data["cutting_rule"] == {"top_z_mm": 0.0, "source": "work_z0"}
     cut, air = data["contour_error_mm"], data["air_error_mm"]
     assert cut["max"] > 0 and air["max"] > 0 and cut["rms"] > air["rms"]

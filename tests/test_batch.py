@@ -19,7 +19,7 @@ from ilcnc.profile.load import load_profile
 from ilcnc.shop import batch
 from ilcnc.shop.batch import jobs_from_path, run_batch
 from ilcnc.vcnc import drives
-from tests.conftest import OWN, REPO
+from tests.conftest import OWN, REPO, cli_output
 
 SEED004 = REPO / "configs" / "seed004-ward-sopdt.yaml"
 EXAMPLE = REPO / "configs" / "example-mill.yaml"
@@ -43,7 +43,7 @@ def test_folder_batch_reports_every_part_and_fails_on_the_broken_one(tmp_path) -
     res = runner.invoke(app, ["batch", str(parts), "--profile", str(SEED004), "--out", str(out), "--iterations", "2",
                               "--json"])
     assert res.exit_code == 1, res.output
-    data = json.loads(res.output)
+    data = json.loads(res.stdout)
     by_name = {Path(p["program"]).name: p for p in data["parts"]}
     assert set(by_name) == {"broken.ngc", "jsdc.gcode", "star.ngc", "square.h"}
     bad = by_name["broken.ngc"]
@@ -97,7 +97,7 @@ def test_two_workers_and_dask_write_the_same_bytes(tmp_path) -> None:
 
 def test_check_gate(tmp_path) -> None:
     ok = runner.invoke(app, ["check", str(REPO / "samples" / "jsdc.gcode"), "--profile", str(SEED004), "--max-error", "0.05"])
-    assert ok.exit_code == 0 and ok.output.startswith("ok: jsdc.gcode")
+    assert ok.exit_code == 0 and cli_output(ok).startswith("ok: jsdc.gcode")
     bad = runner.invoke(app, ["check", str(REPO / "samples" / "jsdc.gcode"), "--profile", str(SEED004), "--max-error",
                               "0.01"])
     assert bad.exit_code == 1
@@ -105,7 +105,7 @@ def test_check_gate(tmp_path) -> None:
     assert line.startswith("error: ") and "jsdc.gcode:" in line and "> 0.01 mm" in line and len(line.splitlines()) == 1
     js = runner.invoke(app, ["check", str(REPO / "samples" / "jsdc.gcode"), "--profile", str(SEED004), "--max-error",
                              "0.01", "--max-rms", "0.001", "--json"])
-    data = json.loads(js.output)
+    data = json.loads(js.stdout)
     assert js.exit_code == 1 and data["passed"] is False and data["contour_error_mm"]["max"] > 0.01
 
 

@@ -20,6 +20,8 @@ from typer.testing import CliRunner
 from ilcnc.cli import app
 from ilcnc.shop.state import IterationEntry, LearnState, sha256_bytes
 
+from .conftest import cli_output
+
 REPO = Path(__file__).resolve().parents[1]
 MILL = REPO / "configs" / "example-mill.yaml"
 COMPASS = REPO / "samples" / "compass.ngc"
@@ -37,7 +39,7 @@ def _learn(part: Path, profile: Path, state: Path, out: Path, *extra: str) -> di
     res = runner.invoke(app, ["learn", str(part), "--profile", str(profile), "--state", str(state), "--out", str(out),
                               "--iterations", "2", "--json", *extra])
     assert res.exit_code == 0, res.output
-    return json.loads(res.output)
+    return json.loads(res.stdout)
 
 
 def _records(state: Path) -> list[dict]:
@@ -54,9 +56,9 @@ def test_a_run_goes_on_with_its_profile_or_branches_with_new_profile(part: Path,
     res = runner.invoke(app, ["learn", str(part), "--profile", str(other), "--state", str(state), "--out",
                               str(tmp_path / "o2.ngc")])
     assert res.exit_code == 1
-    assert res.output.startswith(f"error: {other}: is not the profile this learning run goes on with (sha256 "), \
+    assert cli_output(res).startswith(f"error: {other}: is not the profile this learning run goes on with (sha256 "), \
         res.output
-    assert "--new-profile" in res.output and len(res.output.strip().splitlines()) == 1
+    assert "--new-profile" in cli_output(res) and len(cli_output(res).strip().splitlines()) == 1
     assert (state / "state.json").read_bytes() == before and not (tmp_path / "o2.ngc").exists()
     # a new branch: the old records stay as they were, the new ones name the new profile
     _learn(part, other, state, tmp_path / "o2.ngc", "--new-profile")

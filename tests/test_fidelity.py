@@ -19,6 +19,8 @@ from ilcnc.cli import app
 from ilcnc.shop.fidelity import TARGET_CORRELATION, TARGET_DIFFERENCE, compare_signals
 from ilcnc.vcnc.command_error import CommandSignal
 
+from .conftest import cli_output
+
 REPO = Path(__file__).resolve().parents[1]
 PROFILE = REPO / "configs" / "linuxcnc-sim.yaml"
 JSDC = REPO / "samples" / "jsdc.gcode"  # jscut engraving, 2,381 G01 commands (samples/MANIFEST.tsv)
@@ -28,7 +30,7 @@ runner = CliRunner()
 def _cli(*args: object) -> dict:
     res = runner.invoke(app, [str(a) for a in args] + ["--json"])
     assert res.exit_code == 0, res.output
-    return json.loads(res.output)
+    return json.loads(res.stdout)
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +93,7 @@ def test_compare_does_not_mix_with_other_runs(logs: dict[str, Path], tmp_path: P
     res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(logs["same"]),
                               opt, str(val)])
     assert res.exit_code == 2  # a usage error (issue 25 item 17)
-    assert res.output.strip() == f"error: --compare judges the virtual CNC on PROGRAM as it is: it does not go with {opt}"
+    assert cli_output(res).strip() == f"error: --compare judges the virtual CNC on PROGRAM as it is: it does not go with {opt}"
     assert not (tmp_path / "x.csv").exists()
 
 
@@ -144,7 +146,7 @@ def test_log_columns_read_a_halsampler_log_in_another_order(logs: dict[str, Path
     # the default order (n line x_ref ...) reads x_act as the program line: refused in one line
     bad = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(hal),
                               "--log-format", "halsampler"])
-    assert bad.exit_code == 1 and bad.output.startswith("error: ") and len(bad.output.strip().splitlines()) == 1
+    assert bad.exit_code == 1 and cli_output(bad).startswith("error: ") and len(cli_output(bad).strip().splitlines()) == 1
 
 
 def test_log_columns_name_what_is_wrong(logs: dict[str, Path], tmp_path: Path) -> None:
@@ -156,7 +158,7 @@ def test_log_columns_name_what_is_wrong(logs: dict[str, Path], tmp_path: Path) -
         res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(hal),
                                   "--log-format", "halsampler", "--log-columns", cols])
         assert res.exit_code == 2, res.output  # the option is wrong whatever the file: a usage error
-        assert res.output.startswith("error: ") and msg in res.output and len(res.output.strip().splitlines()) == 1
+        assert cli_output(res).startswith("error: ") and msg in cli_output(res) and len(cli_output(res).strip().splitlines()) == 1
     res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(logs["same"]),
                               "--log-columns", " ".join(ORDER)])
     assert res.exit_code == 1 and "a column map applies only to halsampler and TNCscope logs" in res.output
@@ -187,4 +189,4 @@ def test_a_malformed_log_offset_is_a_usage_error(logs: dict[str, Path], bad: str
     res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(logs["same"]),
                               "--log-offset", bad])
     assert res.exit_code == 2
-    assert res.output.strip() == f"error: --log-offset must be three numbers X,Y,Z (e.g. 100,50,-20), got {bad!r}"
+    assert cli_output(res).strip() == f"error: --log-offset must be three numbers X,Y,Z (e.g. 100,50,-20), got {bad!r}"

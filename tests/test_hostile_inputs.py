@@ -194,7 +194,7 @@ def test_parts_of_one_name_in_two_dialects_learn_side_by_side(tmp_path: Path) ->
     assert res.exit_code == 0, res.output
     import json
 
-    statuses = [r["status"] for r in json.loads(res.output)["parts"]]
+    statuses = [r["status"] for r in json.loads(res.stdout)["parts"]]
     assert len(statuses) == 2 and "error" not in statuses, statuses
     assert sorted(p.name for p in (tmp_path / "out").iterdir() if p.name.endswith(".state")) == [
         "star.ilc.h.state", "star.ilc.ngc.state"]

@@ -113,7 +113,7 @@ def test_the_shifted_log_with_its_offset_gives_the_unshifted_figures(run0: Path,
     for i, (log, extra) in enumerate(((run0, ()), (bad, ("--log-offset", "0.1,0,0")))):
         res = _learn(log, tmp_path / f"st{i}", tmp_path / f"o{i}.ngc", *extra, "--json")
         assert res.exit_code == 0, res.output
-        figs.append(json.loads(res.output)["iterations"][0]["contour_error_mm"])
+        figs.append(json.loads(res.stdout)["iterations"][0]["contour_error_mm"])
     # the offset is subtracted from 6-decimal numbers: the same samples within 1 nm
     for k in ("max", "rms"):
         assert figs[1][k] == pytest.approx(figs[0][k], abs=2e-6)
@@ -166,7 +166,7 @@ def test_a_log_of_the_program_that_ran_before_is_refused(tmp_path: Path) -> None
                                str(run1)]).exit_code == 0
     res = runner.invoke(app, [*learn, str(run1), "--out", str(tmp_path / "o2.ngc"), "--json"])
     assert res.exit_code == 0, res.output
-    assert json.loads(res.output)["iterations"][1]["contour_error_mm"] is not None
+    assert json.loads(res.stdout)["iterations"][1]["contour_error_mm"] is not None
 
 
 def test_log_quantum_is_the_step_of_the_numbers() -> None:
@@ -196,7 +196,7 @@ def test_a_tncscope_log_names_klartext_blocks_by_their_numbers(tmp_path: Path) -
         res = runner.invoke(app, ["learn", str(square), "--profile", str(MILL), "--log", str(log), "--state",
                                   str(tmp_path / f"st{i}"), "--out", str(tmp_path / f"o{i}.h"), "--json"])
         assert res.exit_code == 0, res.output
-        figs.append(json.loads(res.output)["iterations"][0]["contour_error_mm"])
+        figs.append(json.loads(res.stdout)["iterations"][0]["contour_error_mm"])
     for k in ("max", "rms"):
         assert figs[1][k] == pytest.approx(figs[0][k], rel=1e-9, abs=1e-12)
     assert (tmp_path / "o0.h").read_bytes() == (tmp_path / "o1.h").read_bytes()

@@ -122,7 +122,7 @@ def test_squareness_and_pitch_on_a_cam_sample_learned_to_ten_percent(tmp_path) -
 def test_simulate_json_reports_each_share_and_the_wall_normal(tmp_path) -> None:
     res = runner.invoke(app, ["simulate", str(CIRCLE), "--profile", str(SEED002), "--json"])
     assert res.exit_code == 0, res.output
-    data = json.loads(res.output)
+    data = json.loads(res.stdout)
     assert set(data["error_shares_mm"]) == {"dynamic", "geometric"}
     assert 0.002 < data["error_shares_mm"]["geometric"]["max"] < 0.01
     # left of +Y travel is -X
@@ -279,7 +279,7 @@ def test_the_shipped_probe_file_steps_the_circle_and_its_closing_point_counts_fo
                               str(OWN / "seed002_circle_probe.csv"), "--state", str(tmp_path / "st"),
                               "--out", str(tmp_path / "c1.ngc"), "--json"])
     assert res.exit_code == 0, res.output
-    data = json.loads(res.output)
+    data = json.loads(res.stdout)
     assert data["status"] == "stepped" and not data["notes"]  # every command measured
     st = LearnState.load(tmp_path / "st")
     u = st.read_corrections(st.iterations[1])

@@ -30,7 +30,7 @@ runner = CliRunner()
 def _cli(*args: object) -> dict:
     res = runner.invoke(app, [str(a) for a in args] + ["--json"])
     assert res.exit_code == 0, res.output
-    return json.loads(res.output)
+    return json.loads(res.stdout)
 
 
 def _profile(tmp_path: Path, name: str, **learning: object) -> Path:

@@ -437,7 +437,7 @@ def test_the_papers_cases_through_ilcnc_learn(tmp_path, program: str, config: st
     res = CliRunner().invoke(app, ["learn", str(OWN / program), "--profile", str(CONFIGS / config), "--out",
                                    str(tmp_path / program), "--iterations", str(iterations), "--json"])
     assert res.exit_code == 0, res.output
-    data = json.loads(res.output)
+    data = json.loads(res.stdout)
     got = [it["contour_error_mm"]["max"] for it in data["iterations"]]
     # measured as bench/papers.py prints them (5e-6 mm: the last digit docs/papers.md gives)
     assert got == pytest.approx(want_mm, abs=5e-6)

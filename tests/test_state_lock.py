@@ -18,6 +18,8 @@ from typer.testing import CliRunner
 from ilcnc.cli import app
 from ilcnc.shop.state import state_lock
 
+from .conftest import cli_output
+
 REPO = Path(__file__).resolve().parents[1]
 MILL = REPO / "configs" / "example-mill.yaml"
 STAR = REPO / "samples" / "own" / "star.ngc"
@@ -96,6 +98,6 @@ def test_a_corrections_file_changed_by_hand_is_refused(tmp_path: Path) -> None:
     res = runner.invoke(app, ["learn", str(tmp_path / "star.1.ngc"), "--profile", str(MILL), "--log", str(log),
                               "--state", str(s), "--out", str(tmp_path / "star.2.ngc")])
     assert res.exit_code == 1, res.output  # type: ignore[attr-defined]
-    assert res.output.strip() == (f"error: {csv}: changed since ilcnc wrote it (hash mismatch): the learning state is"  # type: ignore[attr-defined]
+    assert cli_output(res).strip() == (f"error: {csv}: changed since ilcnc wrote it (hash mismatch): the learning state is"  # type: ignore[attr-defined]
                                   " damaged")
     assert not (tmp_path / "star.2.ngc").exists()

@@ -160,10 +160,10 @@ def test_simulate_cli_without_samples_to_write_gives_the_figures_of_the_full_run
     figures = runner.invoke(app, args)
     full = runner.invoke(app, [*args, "--out", str(tmp_path / "log.csv")])
     assert figures.exit_code == 0 and full.exit_code == 0, figures.output + full.output
-    assert json.loads(figures.output) == json.loads(full.output)
+    assert json.loads(figures.stdout) == json.loads(full.stdout)
     check = runner.invoke(app, ["check", str(JSDC), "--profile", str(CONFIGS / "seed004-ward-sopdt.yaml"),
                                 "--max-error", "10", "--json"])
-    assert check.exit_code == 0 and json.loads(check.output)["contour_error_mm"] == json.loads(full.output)[
+    assert check.exit_code == 0 and json.loads(check.stdout)["contour_error_mm"] == json.loads(full.stdout)[
         "contour_error_mm"]
 
 

@@ -470,7 +470,7 @@ def test_the_written_schedule_runs_in_simulate(schedule_report: TuneReport, tmp_
     res2 = runner.invoke(app, ["simulate", str(STANDIN), "--profile", str(SEED001), "--json",
                                "--schedule", str(schedule_report.schedule_csv)])
     assert res.exit_code == 0 and res2.exit_code == 0, res2.output
-    before = json.loads(res.output)["contour_error_mm"]["rms"]
+    before = json.loads(res.stdout)["contour_error_mm"]["rms"]
     after = json.loads(res2.output)["contour_error_mm"]["rms"]
     # simulate measures against the programmed G01 path, where the planner's own rounding of the 0.5-mm chords
     # dominates (as in tune's mse_program_*, 158.7 -> 167.3 µm²): measured RMS 8.20 -> 8.49 µm
@@ -511,7 +511,7 @@ def test_schedule_takes_its_settings_from_the_profile(schedule_report: TuneRepor
     res = CliRunner().invoke(app, ["tune", str(STANDIN), "--profile", str(p), "--method", "schedule", "--horizon", "50",
                                    "--lambda", "0", "--json"])
     assert res.exit_code == 0, res.output
-    js2 = json.loads(res.output)["schedule"]
+    js2 = json.loads(res.stdout)["schedule"]
     assert (js2["horizon"], js2["lam"], js2["kp_range"]) == (50, 0.0, [1.0, 2.5])
     res = CliRunner().invoke(app, ["tune", str(STANDIN), "--profile", str(p), "--method", "schedule", "--horizon", "0"])
     assert res.exit_code == 2

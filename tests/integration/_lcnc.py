@@ -42,7 +42,7 @@ def cli_json(*args: object) -> dict[str, Any]:
     """Run ``ilcnc ARGS --json``; it must succeed. Returns its JSON object."""
     res = runner.invoke(app, [str(a) for a in args] + ["--json"])
     assert res.exit_code == 0, res.output
-    return json.loads(res.output)
+    return json.loads(res.stdout)
 
 
 def busy_reason() -> str | None:

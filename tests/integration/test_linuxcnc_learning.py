@@ -19,6 +19,7 @@ from ilcnc.cli import app
 from ilcnc.learning.guard import best_stats, grew
 from ilcnc.profile.load import load_profile
 from ilcnc.shop.state import LearnState
+from tests.conftest import cli_output
 from tests.integration._lcnc import PROFILE, REPO, cli_json, needs_linuxcnc, runner
 
 pytestmark = needs_linuxcnc()
@@ -114,7 +115,7 @@ def test_a_log_cut_off_mid_run_is_refused_and_the_state_kept(loop, tmp_path) -> 
     cut = tmp_path / "cut.csv"
     cut.write_text("\n".join(full[: len(full) // 3]) + "\n")
     state, before, res = _step_on_open_state(loop, tmp_path, cut)
-    assert res.exit_code == 1 and res.output.startswith("error: ") and len(res.output.strip().splitlines()) == 1
+    assert res.exit_code == 1 and cli_output(res).startswith("error: ") and len(cli_output(res).strip().splitlines()) == 1
     assert "cut.csv" in res.output
     assert (state / "state.json").read_bytes() == before
     LearnState.load(state)
@@ -188,6 +189,6 @@ def test_the_log_of_the_program_before_is_refused_on_linuxcnc(loop, tmp_path) ->
     old = tmp_path / "old.csv"
     old.write_text("\n".join(rows[:-1]) + "\n")
     state, before, res = _step_on_open_state(loop, tmp_path, old)
-    assert res.exit_code == 1 and len(res.output.strip().splitlines()) == 1, res.output
+    assert res.exit_code == 1 and len(cli_output(res).strip().splitlines()) == 1, cli_output(res)
     assert "fit the program of iteration 0 (iter-000.ngc) better than iter-001.ngc" in res.output, res.output
     assert (state / "state.json").read_bytes() == before and not (tmp_path / "x.ngc").exists()
