@@ -311,7 +311,9 @@ def contour_error(
     slack = np.asarray(reference_slack_mm, dtype=np.float64)
     if slack.shape not in ((), (m,)):
         raise ValueError(f"reference_slack_mm must be a number or one per segment ({m},), not {slack.shape}")
-    reach = (float(reach_factor), np.ascontiguousarray(np.broadcast_to(slack, (m,))))
+    # a fresh writeable copy either way: a per-segment slack through broadcast_to alone stays a read-only view,
+    # which numba compiles as a type of its own (a second _k_chunk: 7.5 s of a cold learn, issue 24)
+    reach = (float(reach_factor), np.array(np.broadcast_to(slack, (m,)), dtype=np.float64))
     out = ContourError(
         dist_mm=np.empty(n), foot_mm=np.empty((n, 3), order="F"), vector_mm=np.empty((n, 3), order="F"),
         seg=np.empty(n, np.int64), u=np.empty(n), signed_mm=np.empty(n), hint=hint, path=path,
