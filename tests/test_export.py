@@ -189,6 +189,24 @@ def test_inspect_reports_planned_cycle_time_with_a_profile(tmp_path: Path) -> No
     assert rows[0] == "k,line,x,y,z,f" and len(rows) == 2995
 
 
+def test_inspect_warns_where_path_control_rounds_corners_beyond_the_profile() -> None:
+    """Issue 23 item 6: square.ngc says G64 P0.05 (example-mill's tolerance: 0.01 mm); jsdc.gcode says nothing, so
+    on linuxcnc-sim (planner.path_control g64, LinuxCNC's start-up mode) its corners are blended without a bound;
+    on example-mill (path_control tolerance) nothing is said."""
+    import json
+
+    def warns(prog: Path, profile: str) -> list[str]:
+        r = _cli("inspect", str(prog), "--json", "--profile", str(REPO / "configs" / profile))
+        assert r.returncode == 0, r.stderr
+        return json.loads(r.stdout)["warnings"]
+
+    w = warns(OWN / "square.ngc", "example-mill.yaml")
+    assert len(w) == 1 and "blend within up to 0.05 mm (first on line 4)" in w[0] and "0.01 mm" in w[0]
+    w = warns(SAMPLES / "gcode" / "jsdc.gcode", "linuxcnc-sim.yaml")
+    assert len(w) == 1 and w[0].startswith("2381 feed moves run without a path control setting") and "G64 P0.01" in w[0]
+    assert warns(SAMPLES / "gcode" / "jsdc.gcode", "example-mill.yaml") == []
+
+
 @pytest.mark.parametrize("src", [SAMPLES / "heidenhain" / "apt_interface-glue_11.h", OWN / "square-incremental.h",
                                  SAMPLES / "heidenhain" / "apt_top-light-cover_11.h"],
                          ids=lambda p: p.name)

@@ -20,7 +20,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'BASELINE_FORMAT', 'Baseline', 'ProgramCheck', 'check_program', 'expand_programs',
         'figures_line', 'judge', 'junit_xml', 'read_baseline', 'write_baseline'
     ),
-    'inspect': ('InspectReport', 'command_table_csv', 'inspect_program', 'print_report'),
+    'inspect': ('InspectReport', 'command_table_csv', 'corner_rounding_warnings', 'inspect_program', 'print_report'),
     'linuxcnc': (
         'DEFAULT_CONFIG_DIR', 'DEFAULT_LOCK_TIMEOUT_S', 'LinuxCNCBusyError', 'LockHolder', 'MAX_TIME_SCALE',
         'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'run_lock', 'run_program',

@@ -13,7 +13,7 @@ from ilcnc.program import Program, read_program
 from ilcnc.program.geometry import extents_mm, feed_time_s, move_lengths_mm
 from ilcnc.program.model import MOVE_RAPID
 
-__all__ = ["InspectReport", "command_table_csv", "inspect_program", "print_report"]
+__all__ = ["InspectReport", "command_table_csv", "corner_rounding_warnings", "inspect_program", "print_report"]
 
 DEFAULT_RAPID_MM_MIN = 10000.0
 
@@ -70,6 +70,38 @@ def command_table_csv(program: Program) -> str:
     return "\n".join(out) + "\n"
 
 
+def corner_rounding_warnings(program: Program, tolerance_mm: float, default_mode: str) -> list[str]:
+    """Warnings for feed moves whose path control lets the control round corners beyond ``tolerance_mm``.
+
+    A program's ``G64`` without P (or ``P0``) blends as fast as the axes allow (LinuxCNC keeps the blend within a
+    quarter of the shorter move, a profile's tolerance does not apply); ``G64 P`` / cycle 32 T larger than the
+    tolerance rounds by up to that much. Moves without a program setting take the profile's
+    ``planner.path_control``: ``g64`` there is the unbounded case (LinuxCNC's start-up mode).
+    """
+    mv = program.moves
+    feed = mv.kind != MOVE_RAPID
+    tol = mv.blend_tol_mm
+    unset = feed & np.isnan(tol)
+    unbounded = feed & np.isinf(tol)
+    if default_mode == "g64":
+        unbounded = unbounded | unset
+    loose = feed & np.isfinite(tol) & (tol > tolerance_mm * (1 + 1e-9))
+    out = []
+    if unbounded.any():
+        first = int(mv.line[np.flatnonzero(unbounded)[0]])
+        how = "without a path control setting, in the profile's planner.path_control g64" if not np.isinf(
+            tol[np.flatnonzero(unbounded)[0]]) else "in G64 without P"
+        out.append(f"{int(unbounded.sum())} feed moves run {how} (first on line {first}): the control may round"
+                   f" their corners as far as the axes allow (LinuxCNC: up to a quarter of the shorter move), beyond"
+                   f" the profile's corner tolerance {tolerance_mm:g} mm; G64 P{tolerance_mm:g} bounds it")
+    if loose.any():
+        first = int(mv.line[np.flatnonzero(loose)[0]])
+        worst = float(tol[loose].max())
+        out.append(f"{int(loose.sum())} feed moves blend within up to {worst:g} mm (first on line {first}): corners"
+                   f" may be rounded more than the profile's corner tolerance {tolerance_mm:g} mm")
+    return out
+
+
 def inspect_program(path: Path, *, profile_path: Path | None = None, moves_out: Path | None = None) -> InspectReport:
     """Read a program and summarise it; optionally write its command table."""
     rapid = DEFAULT_RAPID_MM_MIN
@@ -89,7 +121,9 @@ def inspect_program(path: Path, *, profile_path: Path | None = None, moves_out: 
     ext = extents_mm(mv)
     if moves_out is not None:
         write_atomic(moves_out, command_table_csv(program), protect=(path,))
+    warnings = list(program.warnings)
     if prof is not None:
+        warnings += corner_rounding_warnings(program, prof.planner.corner_tolerance_mm, prof.planner.path_control)
         from ilcnc.vcnc.plan import planned_duration_s
 
         cycle = planned_duration_s(program, prof)
@@ -110,7 +144,7 @@ def inspect_program(path: Path, *, profile_path: Path | None = None, moves_out: 
         cycle_time_s=cycle,
         feed_only_time_s=feed_time_s(mv, rapid),
         cycle_time_kind=kind,
-        warnings=list(program.warnings),
+        warnings=warnings,
     )
 
 
