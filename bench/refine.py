@@ -15,6 +15,7 @@ cycle time change, without and with ``--refine`` (the same run, so the ratios co
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
@@ -35,25 +36,16 @@ def _ilcnc(*args: object) -> dict:
 
 
 def main(argv: list[str]) -> None:
-    arcs = "--arcs" in argv
-    feed = "--feed" in argv
-    argv = [a for a in argv if a not in ("--arcs", "--feed")]
-    error = None
-    if "--error" in argv:
-        i = argv.index("--error")
-        error = argv[i + 1]
-        argv = argv[:i] + argv[i + 2:]
-    radial = None
-    if "--arc-radial" in argv:
-        i = argv.index("--arc-radial")
-        radial = float(argv[i + 1])
-        argv = argv[:i] + argv[i + 2:]
-    gamma = None
-    if "--gamma" in argv:
-        i = argv.index("--gamma")
-        gamma = float(argv[i + 1])
-        argv = argv[:i] + argv[i + 2:]
-    programs = [Path(a) for a in argv] or DEFAULT
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("programs", nargs="*", type=Path, help="default: the four programs of the issue")
+    ap.add_argument("--arcs", action="store_true", help="learning.refine.arcs: on")
+    ap.add_argument("--feed", action="store_true", help="learning.refine.feed: on")
+    ap.add_argument("--gamma", type=float, help="learning.gains.gamma")
+    ap.add_argument("--arc-radial", dest="radial", type=float, help="learning.arc_start_radial_mm")
+    ap.add_argument("--error", help="learning.error")
+    args = ap.parse_args(argv)
+    arcs, feed, gamma, radial, error = args.arcs, args.feed, args.gamma, args.radial, args.error
+    programs = args.programs or DEFAULT
     resolution_um = 1.0  # configs/example-mill.yaml machine.resolution_mm
     print(f"{'program':28s} {'mode':8s} {'max um':>16s} {'max':>6s} {'RMS um':>14s} {'RMS':>6s} {'cycle':>7s} {'lines+':>6s}")
     with tempfile.TemporaryDirectory() as tmp:

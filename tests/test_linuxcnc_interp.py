@@ -648,9 +648,10 @@ def _split_splines(prog: Program, mine: Motion, theirs: Motion, src: list[str], 
     if not spline_lines.size:
         return mine, theirs, []
     problems: list[str] = []
-    tol = SPLINE_CHORD_MM + (RS274_TOL * 25.4 if oracle == "rs274" else 1e-9)
     for ln in spline_lines.tolist():
         ours_sel = np.flatnonzero(mv.line == ln)
+        # rs274 prints 4 decimals of the program's unit (RS274_TOL); the gcode module full doubles
+        tol = SPLINE_CHORD_MM + (RS274_TOL * float(mv.unit_mm[ours_sel[0]]) if oracle == "rs274" else 1e-9)
         a, b = mv.start_mm[ours_sel, :2] - mv.offset_mm[ours_sel, :2], mv.end_mm[ours_sel, :2] - mv.offset_mm[ours_sel, :2]
         pts = theirs.end[(theirs.line == ln) & (theirs.kind == 1), :2]
         for p in pts:

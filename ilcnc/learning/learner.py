@@ -244,8 +244,8 @@ def keep_arcs_valid(u: NDArray[np.float64], sel: NDArray[np.int64], geo: dict[st
     with np.errstate(invalid="ignore", divide="ignore"):
         dang = np.where(r > 0, along / r, 0.0) * geo["direction"]
     radial = uu[rows, ax[:, 0]] * np.cos(ang) + uu[rows, ax[:, 1]] * np.sin(ang)
-    lim_r = geo.get("radial_mm", np.zeros(sel.size))
-    r1 = geo.get("end_radius_mm", r)
+    lim_r = geo["radial_mm"]
+    r1 = geo["end_radius_mm"]
     rn = np.clip(r + radial, r1 - lim_r, r1 + lim_r)
     rn = np.where(lim_r > 0, rn, r)
     n1, n2 = c1 + rn * np.cos(ang + dang), c2 + rn * np.sin(ang + dang)

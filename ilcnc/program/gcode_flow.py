@@ -262,7 +262,7 @@ def run_control_flow(
                         break
                     continue
                 executed[i] += 1
-                m98 = _fanuc_word(blk, path)
+                m98 = _fanuc_word(blk)
                 if m98 == 98:
                     num, times = _fanuc_call(blk, path)
                     start = struct.fanuc.get(num)
@@ -414,7 +414,7 @@ def run_control_flow(
     return unsupported
 
 
-def _fanuc_word(blk: Any, path: Path) -> int | None:
+def _fanuc_word(blk: Any) -> int | None:
     """98 or 99 when the block holds ``M98`` / ``M99`` (then nothing but P, L and N may stand with it)."""
     found = None
     for w in blk.words:
@@ -438,7 +438,7 @@ def _fanuc_call(blk: Any, path: Path) -> tuple[int, int]:
         raise ProgramError(path, blk.line, "M98 needs P, the number of the subprogram to call")
     if times < 0 or times != round(times):
         raise ProgramError(path, blk.line, f"M98 L must be a whole number of calls, got L{times:g}")
-    if times * 1 >= MAX_EXECUTED_LINES:
+    if times >= MAX_EXECUTED_LINES:
         raise Unmodelled(blk.line, f"M98 L{times:g} would run more than {MAX_EXECUTED_LINES} lines: not modelled")
     return int(p), int(times)
 

@@ -88,9 +88,10 @@ def corner_rounding_warnings(program: Program, tolerance_mm: float, default_mode
     loose = feed & np.isfinite(tol) & (tol > tolerance_mm * (1 + 1e-9))
     out = []
     if unbounded.any():
-        first = int(mv.line[np.flatnonzero(unbounded)[0]])
-        how = "without a path control setting, in the profile's planner.path_control g64" if not np.isinf(
-            tol[np.flatnonzero(unbounded)[0]]) else "in G64 without P"
+        i = int(np.flatnonzero(unbounded)[0])
+        first = int(mv.line[i])
+        how = "in G64 without P" if np.isinf(tol[i]) else ("without a path control setting, in the profile's"
+                                                           " planner.path_control g64")
         out.append(f"{int(unbounded.sum())} feed moves run {how} (first on line {first}): the control may round"
                    f" their corners as far as the axes allow (LinuxCNC: up to a quarter of the shorter move), beyond"
                    f" the profile's corner tolerance {tolerance_mm:g} mm; G64 P{tolerance_mm:g} bounds it")
