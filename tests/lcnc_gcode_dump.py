@@ -18,7 +18,8 @@ Output (OUT.json, one JSON object; stdout gets the program's own (PRINT,...) lin
   9 any other motion (probe, rigid tap ...); arcs carry their centre,
   straight moves ``null`` centres; ``line`` is the 1-based source line;
 * rows of kind 100 / 101 are not moves but the new G5x / G92 offset (x, y, z),
-  inches, in effect for the moves after them;
+  inches, in effect for the moves after them; rows of kind 102 the new XY
+  rotation of the work system (degrees, in the x column);
 * ``error_line`` is the line of the last block that made a canon call (the
   module announces ``next_line`` only then); ``last_line`` is what
   ``gcode.parse`` returns (the failing line, or the one after it for read
@@ -82,6 +83,9 @@ class Canon:
 
     def set_g92_offset(self, x: float, y: float, z: float, *rest: float) -> None:
         self.moves.append([101, self.lineno, x, y, z, None, None, None])
+
+    def set_xy_rotation(self, t: float) -> None:
+        self.moves.append([102, self.lineno, t, None, None, None, None, None])
 
     def straight_traverse(self, x: float, y: float, z: float, *rest: float) -> None:
         self.moves.append([0, self.lineno, x, y, z, None, None, None])

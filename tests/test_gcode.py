@@ -23,6 +23,8 @@ from ilcnc.program.model import (
     MOVE_RAPID,
     SPAN_LAZY,
     STYLE_LITERAL,
+    program_frame_mm,
+    rotate_xy,
 )
 
 from .conftest import OWN, SAMPLES, SHARED_SAMPLES, sample_files, shared_sample_reason
@@ -45,21 +47,26 @@ def test_every_sample_reads_and_spans_hold_the_numbers(path: Path) -> None:
     idx_all = prog.command_moves
     assert np.all(np.any(mv.word_start[idx_all] >= 0, axis=1))
     idx = prog.command_moves
-    # every command's coordinate spans hold exactly the number that gives its end point
+    # every command's coordinate spans hold exactly the number that gives its end point, in the program frame
+    # (a rotated work system, G10 L2 R, turns the words: rotate_xy undoes the turn)
+    end_p = program_frame_mm(mv, mv.end_mm)
+    step_p = rotate_xy(mv.end_mm - mv.start_mm, -mv.rotation_deg)
+    centre_p = rotate_xy(mv.center_mm - mv.start_mm, -mv.rotation_deg)
     for a in range(3):
         ws, we = mv.word_start[idx, a], mv.word_end[idx, a]
         has = ws >= 0
         for i, s, e in zip(idx[has][:2000], ws[has][:2000], we[has][:2000], strict=True):
             if not mv.word_style[i, a] & STYLE_LITERAL:
                 # a parameter or an expression (corrected as [expression+c]): the move says so
-                assert mv.flags[i] & FLAG_PARAMETRIC and prog.text[s:e][:1] in "#[-+"
+                # (or a function call, sqrt[2])
+                assert mv.flags[i] & FLAG_PARAMETRIC and (prog.text[s:e][:1] in "#[-+" or prog.text[s:e][:1].isalpha())
                 continue
             val = float(prog.text[s:e].replace(" ", ""))
             unit = mv.unit_mm[i]
             if mv.word_incremental[i, a]:
-                assert val * unit == pytest.approx(mv.end_mm[i, a] - mv.start_mm[i, a], abs=1e-9)
+                assert val * unit == pytest.approx(step_p[i, a], abs=1e-9)
             else:
-                assert val * unit + mv.offset_mm[i, a] == pytest.approx(mv.end_mm[i, a], abs=1e-9)
+                assert val * unit == pytest.approx(end_p[i, a], abs=1e-9)
     # arc centre words (I/J/K relative to the start) hold the centre
     arcs = np.flatnonzero((mv.kind >= MOVE_ARC_CW) & np.any(mv.center_start >= 0, axis=1))
     for i in arcs[:2000]:
@@ -68,7 +75,7 @@ def test_every_sample_reads_and_spans_hold_the_numbers(path: Path) -> None:
             if s < 0 or not mv.center_incremental[i, a] or not mv.center_style[i, a] & STYLE_LITERAL:
                 continue
             val = float(prog.text[s:e].replace(" ", ""))
-            assert val * mv.unit_mm[i] == pytest.approx(mv.center_mm[i, a] - mv.start_mm[i, a], abs=1e-9)
+            assert val * mv.unit_mm[i] == pytest.approx(centre_p[i, a], abs=1e-9)
     # consecutive moves chain
     if len(mv) > 1:
         assert np.allclose(mv.start_mm[1:], mv.end_mm[:-1])
@@ -535,3 +542,30 @@ def test_quadratic_splines_linuxcnc_refuses_are_refused(tmp_path: Path, body: st
     """Each refused by rs274 too (the last but one: rs274 makes no move, refused here rather than guessed)."""
     prog = read_program(_m98(tmp_path, f"G21 G90 G17\nG0 X0 Y0 Z0\n{body}\nG1 X0 Y0\nM30\n"))
     assert prog.unsupported is not None and problem in prog.unsupported[1]
+
+
+def test_rotated_work_system_moves_and_refusals() -> None:
+    """G10 L2 R turns the work system's XY about its origin (LinuxCNC: machine = R (program + G92) + G5x; the
+    comparison with rs274 on tests/data/rotated_frames.ngc is in test_linuxcnc_interp). The reader records the
+    rotation per move, and refuses, naming the line, what it cannot follow."""
+    prog = _read("G21 G90\nG10 L2 P1 X10 Y0 R90\nG54 G1 X5 Y0 F100\nG91 X0 Y2\nG2 X-2 Y-2 I0 J-2\nM2\n")
+    assert prog.unsupported is None
+    mv = prog.moves
+    # (5, 0) turned by 90 degrees is (0, 5), plus the work offset (10, 0); G91 Y2 goes -X on the machine
+    assert mv.end_mm[0] == pytest.approx([10.0, 5.0, 0.0], abs=1e-12)
+    assert mv.end_mm[1] == pytest.approx([8.0, 5.0, 0.0], abs=1e-12)
+    # the arc keeps its direction; its centre (program start + I J = (5, 0)) is turned too
+    assert mv.kind[2] == MOVE_ARC_CW
+    assert mv.center_mm[2, :2] == pytest.approx([10.0, 5.0], abs=1e-12)
+    assert mv.end_mm[2] == pytest.approx([10.0, 3.0, 0.0], abs=1e-12)
+    assert mv.rotation_deg.tolist() == [90.0, 90.0, 90.0]
+    assert program_frame_mm(mv, mv.end_mm)[2] == pytest.approx([3.0, 0.0, 0.0], abs=1e-12)
+    # LinuxCNC refuses R with L20 ("R not allowed in G10 L20")
+    bad = _read("G21\nG10 L20 P1 X0 R10\nG1 X1 F100\nM2\n")
+    assert bad.unsupported == (2, "R not allowed in G10 L20")
+    # LinuxCNC tilts an XZ arc's plane with the rotation: the move table cannot hold it
+    xz = _read("G21 G18\nG10 L2 P1 R30\nG1 X1 F100\nG2 X3 Z0 I1 K0\nM2\n")
+    assert xz.unsupported is not None and xz.unsupported[0] == 4 and "G18" in xz.unsupported[1]
+    # a new rotation of the active system under a G92 offset: LinuxCNC's interpreter loses its position
+    g92 = _read("G21\nG1 X1 F100\nG92 X0\nG10 L2 P1 R30\nG1 X1\nM2\n")
+    assert g92.unsupported is not None and g92.unsupported[0] == 4 and "G92" in g92.unsupported[1]

@@ -3,8 +3,9 @@
 Acceptance: ``inspect --moves`` on the LinuxCNC programs agrees with LinuxCNC's
 interpreter. For every G-code sample in ``samples/third_party/{gcode,contour,interp,large}``
 LinuxCNC's interpreter is run and every straight feed (end point and source
-line) is compared with ours, in the program frame (``end_mm - offset_mm``:
-LinuxCNC reports work coordinates, offsets not applied):
+line) is compared with ours, in the program frame (``program_frame_mm``:
+LinuxCNC reports work coordinates, offsets and the work system's XY rotation
+(``G10 L2 R``) not applied):
 
 * ``rs274 -g`` (the standalone interpreter) on a copy whose every line is
   prefixed ``N<line>`` so that its output names the source line; it prints 4
@@ -19,7 +20,8 @@ LinuxCNC reports work coordinates, offsets not applied):
 
 Both tests check both routes: the straight feeds (what ``inspect --moves``
 lists), and all motion (rapids, feeds, arcs with their centres, and the end
-points with the work / G92 offsets added). rs274 gets a tool table in which
+points with the work / G92 offsets and the rotation applied as LinuxCNC's canon
+applies them). rs274 gets a tool table in which
 every tool exists with zero length and diameter, so that cutter compensation
 leaves the programmed path unchanged.
 
@@ -53,7 +55,7 @@ import pytest
 
 from ilcnc.errors import ProgramError, UnsupportedError
 from ilcnc.program import read_program
-from ilcnc.program.model import MOVE_LINE, Program
+from ilcnc.program.model import MOVE_LINE, Program, program_frame_mm, rotate_xy
 from ilcnc.units import MM_PER_INCH
 
 from .conftest import sample_files
@@ -70,7 +72,9 @@ pytestmark = pytest.mark.linuxcnc
 
 SYSTEM_PYTHON = Path("/usr/bin/python3")
 DUMP_SCRIPT = Path(__file__).with_name("lcnc_gcode_dump.py")
-SAMPLES = sample_files("gcode", "contour", "interp", "large")
+# the samples, and ilcnc's own program of the constructs the samples use once or not at all: work systems turned by
+# G10 L2 R with arcs (I/J, R, G90.1), G91, G92, G10 L20, drilling cycles, G5.1, G53 and polar words in them
+SAMPLES = [*sample_files("gcode", "contour", "interp", "large"), Path(__file__).with_name("data") / "rotated_frames.ngc"]
 TIMEOUT_S = 120
 
 KIND_NAMES = {0: "G0", 1: "G1", 2: "G2", 3: "G3", 9: "other motion"}
@@ -123,7 +127,8 @@ class Motion:
     center: np.ndarray  # (M, 3) mm, program frame; NaN where none / normal axis
     tol: np.ndarray  # (M,) mm, comparison tolerance of each move
     zero: np.ndarray  # (M,) bool: a straight move that does not move (consistent frame)
-    machine: np.ndarray  # (M, 3) mm, end point with the work (G5x) and G92/G52 offsets added
+    machine: np.ndarray  # (M, 3) mm, end point with the G92/G52 offsets, the XY rotation and the work offset applied
+    mtol: np.ndarray  # (M,) mm, comparison tolerance of ``machine``
 
     def __len__(self) -> int:
         return int(self.kind.shape[0])
@@ -137,29 +142,46 @@ class Motion:
             self.tol[mask],
             self.zero[mask],
             self.machine[mask],
+            self.mtol[mask],
         )
 
 
-def _zero_length(kind: np.ndarray, machine: np.ndarray) -> np.ndarray:
+def _zero_length(kind: np.ndarray, machine: np.ndarray, zero_mm: np.ndarray | float = ZERO_MM) -> np.ndarray:
     """Straight moves that do not move (consistent frame; the machine starts at 0, 0, 0)."""
     if not len(kind):
         return np.zeros(0, dtype=bool)
     prev = np.vstack([np.zeros((1, 3)), machine[:-1]])
     step = np.abs(machine - prev).max(axis=1)
-    return ((kind == 0) | (kind == 1)) & (step <= ZERO_MM)
+    return ((kind == 0) | (kind == 1)) & (step <= zero_mm)
 
 
-def _motion(kind: list[int], line: list[int], end: list, center: list, machine: list, tol: list[float]) -> Motion:
+def _motion(kind: list[int], line: list[int], end: list, center: list, machine: list, tol: list[float],
+            rotation: list[float] | None = None) -> Motion:
+    """A motion list; ``rotation`` (degrees per move) only for rs274's printed numbers, whose rounding the rotation
+    carries into the machine point (see below)."""
     k = np.array(kind, dtype=np.int64)
     m = np.array(machine, dtype=np.float64).reshape(-1, 3)
+    t = np.array(tol, dtype=np.float64)
+    # the machine point adds three printed numbers (program point, G92 and G5x offsets; each within tol per axis):
+    # 2 tol as before where nothing turns; turned by the rotation, the first two add up to (|cos|+|sin|) tol each
+    mtol = 2 * t
+    zero = np.full(len(k), ZERO_MM)
+    if rotation is not None and len(k):
+        r = np.radians(np.array(rotation, dtype=np.float64))
+        turned = r != 0.0
+        mtol = np.where(turned, (1.0 + 2.0 * (np.abs(np.cos(r)) + np.abs(np.sin(r)))) * t, mtol)
+        # a move between two such points that does not move shows a step of up to twice that rounding
+        near = turned | np.concatenate([[False], turned[:-1]])
+        zero = np.where(near, 2.0 * mtol, zero)
     return Motion(
         k,
         np.array(line, dtype=np.int64),
         np.array(end, dtype=np.float64).reshape(-1, 3),
         np.array(center, dtype=np.float64).reshape(-1, 3),
-        np.array(tol, dtype=np.float64),
-        _zero_length(k, m),
+        t,
+        _zero_length(k, m, zero),
         m,
+        mtol,
     )
 
 
@@ -169,11 +191,12 @@ def _ours_motion(prog: Program) -> Motion:
     return Motion(
         kind,
         mv.line.astype(np.int64),
-        mv.end_mm - mv.offset_mm,
-        mv.center_mm - mv.offset_mm,
+        program_frame_mm(mv, mv.end_mm),
+        program_frame_mm(mv, mv.center_mm),
         np.zeros(len(mv)),
         _zero_length(kind, mv.end_mm),
         mv.end_mm,
+        np.zeros(len(mv)),
     )
 
 
@@ -259,11 +282,23 @@ _UNITS = {"CANON_UNITS_MM": 1.0, "CANON_UNITS_INCHES": MM_PER_INCH, "CANON_UNITS
 _OTHER_MOTION = {"STRAIGHT_PROBE", "RIGID_TAP", "NURBS_FEED", "SPLINE_FEED"}
 
 
+def _canon_machine(end: np.ndarray, g5x: list, g92: list, rotation: list) -> np.ndarray:
+    """LinuxCNC's canon (emccanon.cc ``rotate_and_offset_pos``) on the interpreter's program-frame points: the G92
+    offset added, the XY rotation of the work system (degrees) turned about the work origin, the G5x offset added;
+    mm, one offset and rotation per point."""
+    e = np.asarray(end, dtype=np.float64).reshape(-1, 3)
+    turned = rotate_xy(e + np.array(g92, dtype=np.float64).reshape(-1, 3), np.array(rotation, dtype=np.float64))
+    return turned + np.array(g5x, dtype=np.float64).reshape(-1, 3)
+
+
 def _parse_rs274(stdout: str) -> Motion:
     unit = 1.0
     plane = _PLANES["CANON_PLANE_XY"]
     g5x = (0.0, 0.0, 0.0)
     g92 = (0.0, 0.0, 0.0)
+    rot = 0.0
+    rots: list[float] = []
+    g92s: list[tuple[float, float, float]] = []
     kind: list[int] = []
     line: list[int] = []
     end: list[list[float]] = []
@@ -302,13 +337,17 @@ def _parse_rs274(stdout: str) -> Motion:
             elif name == "SET_G92_OFFSET":
                 x, y, z = (float(v) * unit for v in args.split(",")[0:3])
                 g92 = (x, y, z)
+            elif name == "SET_XY_ROTATION":
+                rot = float(args)
             continue
         line.append(int(n) if n[0] != "." else 0)
         end.append(p)
-        offsets.append((g5x[0] + g92[0], g5x[1] + g92[1], g5x[2] + g92[2]))
+        offsets.append(g5x)
+        g92s.append(g92)
+        rots.append(rot)
         tol.append(RS274_TOL * unit)
     e = np.array(end, dtype=np.float64).reshape(-1, 3)
-    return _motion(kind, line, e, center, e + np.array(offsets, dtype=np.float64).reshape(-1, 3), tol)
+    return _motion(kind, line, e, center, _canon_machine(e, offsets, g92s, rots), tol, rots)
 
 
 def _refusal(stderr: str, stdout: str, copy_lines: list[str]) -> tuple[str, int | None, str]:
@@ -416,12 +455,16 @@ class LinuxCNC:
             )
             return Oracle("gcode module", False, "", None, "", None, note)
         data = json.loads((d / "moves.json").read_text())
-        kind, line, end, center, offsets = [], [], [], [], []
+        kind, line, end, center, offsets, g92s, rots = [], [], [], [], [], [], []
         g5x = g92 = (0.0, 0.0, 0.0)
+        rot = 0.0
         for row in data["moves"]:
             k, ln = row[0], row[1]
             if k in (100, 101):  # new G5x / G92 offset
                 g5x, g92 = (row[2:5], g92) if k == 100 else (g5x, row[2:5])
+                continue
+            if k == 102:  # new XY rotation of the work system
+                rot = row[2]
                 continue
             if row[2] is None:  # other motion (probe, rigid tap): end point not reported
                 p = end[-1] if end else [0.0, 0.0, 0.0]
@@ -431,9 +474,12 @@ class LinuxCNC:
             line.append(ln)
             end.append(p)
             center.append([v if v is not None else math.nan for v in row[5:8]])
-            offsets.append((g5x[0] + g92[0], g5x[1] + g92[1], g5x[2] + g92[2]))
+            offsets.append(g5x)
+            g92s.append(g92)
+            rots.append(rot)
         e = np.array(end, dtype=np.float64).reshape(-1, 3) * MM_PER_INCH
-        m = e + np.array(offsets, dtype=np.float64).reshape(-1, 3) * MM_PER_INCH
+        m = _canon_machine(e, np.array(offsets, dtype=np.float64) * MM_PER_INCH,
+                           np.array(g92s, dtype=np.float64) * MM_PER_INCH, rots)
         c = np.array(center, dtype=np.float64).reshape(-1, 3) * MM_PER_INCH
         mot = _motion(kind, line, e, c, m, [GCODE_TOL_MM] * len(kind))
         ok = data["result"] <= data["min_error"]
@@ -498,7 +544,7 @@ def _compare(ours: Motion, theirs: Motion, oracle: str, src: list[str], what: st
 
     Always: kind, source line and end point (program frame) of each move. With ``full`` also the
     arc centres (in-plane) and the end point with the work and G92/G52 offsets added (the offsets
-    in force; rs274 prints them with 4 decimals too, hence twice the tolerance).
+    in force; rs274 prints them with 4 decimals too, hence a wider tolerance, ``Motion.mtol``).
     """
     n = min(len(ours), len(theirs))
     problems: list[str] = []
@@ -509,7 +555,7 @@ def _compare(ours: Motion, theirs: Motion, oracle: str, src: list[str], what: st
     bad = line_bad | kind_bad | pos_bad
     if full and n:
         merr = np.abs(ours.machine[:n] - theirs.machine[:n]).max(axis=1)
-        bad |= ~(merr <= 2 * theirs.tol[:n])
+        bad |= ~(merr <= theirs.mtol[:n])
         arc = (theirs.kind[:n] == 2) | (theirs.kind[:n] == 3)
         cd = np.abs(ours.center[:n] - theirs.center[:n])
         cerr = np.where(np.isnan(theirs.center[:n]), 0.0, cd)
@@ -652,7 +698,8 @@ def _split_splines(prog: Program, mine: Motion, theirs: Motion, src: list[str], 
         ours_sel = np.flatnonzero(mv.line == ln)
         # rs274 prints 4 decimals of the program's unit (RS274_TOL); the gcode module full doubles
         tol = SPLINE_CHORD_MM + (RS274_TOL * float(mv.unit_mm[ours_sel[0]]) if oracle == "rs274" else 1e-9)
-        a, b = mv.start_mm[ours_sel, :2] - mv.offset_mm[ours_sel, :2], mv.end_mm[ours_sel, :2] - mv.offset_mm[ours_sel, :2]
+        a = program_frame_mm(mv, mv.start_mm[ours_sel], ours_sel)[:, :2]
+        b = program_frame_mm(mv, mv.end_mm[ours_sel], ours_sel)[:, :2]
         pts = theirs.end[(theirs.line == ln) & (theirs.kind == 1), :2]
         for p in pts:
             d = b - a

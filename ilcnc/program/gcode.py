@@ -27,6 +27,7 @@ import numpy as np
 from ilcnc.errors import ProgramError
 from ilcnc.program.expr import Parameters
 from ilcnc.program.gcode_flow import has_control_flow, run_control_flow
+from ilcnc.program.gcode_frame import WorkFrames, turn_xy
 from ilcnc.program.gcode_lexer import MAX_NUMBER, Block, Lexer, Word
 from ilcnc.program.model import (
     BLEND_EXACT_PATH,
@@ -113,7 +114,7 @@ _CS_CODES = {540: 1, 550: 2, 560: 3, 570: 4, 580: 5, 590: 6, 591: 7, 592: 8, 593
 
 
 @dataclass(slots=True)
-class _State:
+class _State(WorkFrames):
     unit: float = 1.0
     plane: int = PLANE_XY
     absolute: bool = True
@@ -122,11 +123,8 @@ class _State:
     feed: float = 0.0  # program units / min
     spindle: float = 0.0
     motion: int = 800  # G80: no motion mode active at start (as LinuxCNC)
-    cs: int = 1
     cutter_comp: bool = False
     pos: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    g5x: list[list[float]] = field(default_factory=lambda: [[0.0, 0.0, 0.0] for _ in range(10)])
-    g92: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     units_seen: str | None = None
     retract_old_z: bool = False  # G98 / G99 (LinuxCNC starts in G99: retract to R)
     cycle_r: float | None = None
@@ -135,13 +133,6 @@ class _State:
     cycle_p: float | None = None
     cycle_q: float | None = None
     blend_tol: float = BLEND_PROFILE  # path control (G61, G61.1, G64 [P]) as MoveTable.blend_tol_mm, mm
-
-    def offset(self) -> tuple[float, float, float]:
-        o = self.g5x[self.cs]
-        g = self.g92
-        return (o[0] + g[0], o[1] + g[1], o[2] + g[2])
-
-
 
 
 class _Interpreter:
@@ -400,9 +391,22 @@ class _Interpreter:
             self._add(MOVE_LINE, line, (p[0], p[1], z), flags=flags, words=none3, offset=off, feed=feed)
 
         polar = self.polar_words if self.polar_words != (None, None) else None
+        rot = st.rotation()
         for rep in range(repeats):
             p = st.pos
-            if polar is not None and not st.absolute and rep > 0:
+            if rot != 0.0:
+                # a rotated work system: the hole is placed in its program frame, then turned (Z is not turned)
+                q = st.to_program(p)
+                if polar is not None and not st.absolute and rep > 0:
+                    r = math.hypot(q[0], q[1]) + (polar[0] or 0.0) * u
+                    a = math.degrees(math.atan2(q[1], q[0])) + (polar[1] or 0.0)
+                    q[0], q[1] = r * math.cos(math.radians(a)), r * math.sin(math.radians(a))
+                else:
+                    for i in (0, 1):
+                        if axis_words[i] is not None:
+                            q[i] = axis_words[i].value * u + (0.0 if st.absolute else q[i])
+                x, y, _ = st.to_machine(q)
+            elif polar is not None and not st.absolute and rep > 0:
                 # G91 polar repeats step the polar radius and angle again from the new hole
                 px, py = (p[0] - off[0]) / u, (p[1] - off[1]) / u
                 r = math.hypot(px, py) + (polar[0] or 0.0)
@@ -457,9 +461,13 @@ class _Interpreter:
             raise self.error(line, "polar coordinates @ ^ cannot be mixed with X or Y words")
         if st.plane != PLANE_XY:
             raise self.error(line, "polar coordinates @ ^ need plane G17")
-        off = st.offset()
-        px = (st.pos[0] - off[0]) / st.unit
-        py = (st.pos[1] - off[1]) / st.unit
+        if st.rotation() != 0.0:
+            q = st.to_program(st.pos)
+            px, py = q[0] / st.unit, q[1] / st.unit
+        else:
+            off = st.offset()
+            px = (st.pos[0] - off[0]) / st.unit
+            py = (st.pos[1] - off[1]) / st.unit
         r0 = math.hypot(px, py)
         a0 = math.degrees(math.atan2(py, px))
         rw, aw = letters.pop("@", None), letters.pop("^", None)
@@ -496,20 +504,16 @@ class _Interpreter:
         lval = round(lw.value)
         if lval not in (2, 20):
             raise Unmodelled(line, f"G10 L{lval} (tool table) is not modelled")
-        if "R" in letters and abs(letters["R"].value) > 0:
-            raise Unmodelled(line, "G10 with R (rotated coordinate system) is not modelled")
+        rw = letters.get("R")
+        if rw is not None and lval == 20:
+            raise self.error(line, "R not allowed in G10 L20")
         p = round(pw.value) if pw is not None else 0
         if p < 0 or p > 9:
             raise self.error(line, f"G10 P{p} out of range 0..9")
-        cs = st.cs if p == 0 else p
-        for i, a in enumerate("XYZ"):
-            w = letters.get(a)
-            if w is None:
-                continue
-            if lval == 2:
-                st.g5x[cs][i] = w.value * st.unit
-            else:
-                st.g5x[cs][i] = st.pos[i] - w.value * st.unit - st.g92[i]
+        words = [letters[a].value * st.unit if a in letters else None for a in "XYZ"]
+        problem = st.set_origin(lval, st.cs if p == 0 else p, words, rw.value if rw is not None else None, st.pos)
+        if problem is not None:
+            raise Unmodelled(line, problem + " is not modelled")
 
     def _save_g92(self, on: bool) -> None:
         """Keep the G92/G52 offsets in #5210 (on) and #5211..#5213 (program units), as LinuxCNC does."""
@@ -523,9 +527,7 @@ class _Interpreter:
         st = self.st
         if all(w is None for w in axis_words):
             raise self.error(line, "G92 without axis words")
-        for i, w in enumerate(axis_words):
-            if w is not None:
-                st.g92[i] = st.pos[i] - st.g5x[st.cs][i] - w.value * st.unit
+        st.set_g92([w.value * st.unit if w is not None else None for w in axis_words], st.pos)
 
     def _home(self, code: int, letters: dict[str, Word], axis_words: list[Word | None], line: int) -> None:
         st = self.st
@@ -543,6 +545,17 @@ class _Interpreter:
 
     def _target(self, axis_words: list[Word | None], off: tuple[float, float, float], machine: bool) -> list[float]:
         st = self.st
+        if not machine and st.rotation() != 0.0:
+            # a rotated work system: the words (absolute or incremental) are in its program frame
+            q = st.to_program(st.pos)
+            for i, w in enumerate(axis_words):
+                if w is not None:
+                    q[i] = w.value * st.unit + (0.0 if st.absolute else q[i])
+            t = st.to_machine(q)
+            for i in range(3):
+                if axis_words[i] is None and (i == 2 or (axis_words[0] is None and axis_words[1] is None)):
+                    t[i] = st.pos[i]  # an axis not named does not move (no turn-and-back rounding)
+            return t
         t = list(st.pos)
         for i, w in enumerate(axis_words):
             if w is None:
@@ -595,7 +608,8 @@ class _Interpreter:
         self.builder.add(
             kind, line, start, endt, feed=feed, unit=st.unit, offset=offset, center=center, plane=plane,
             turns=turns, correctable=correctable, flags=flags, wstart=ws, wend=we, wdec=wd, wstyle=wst,
-            winc=winc, insert_at=insert_at, blend_tol=st.blend_tol, block_time=block_time, **kw,
+            winc=winc, insert_at=insert_at, blend_tol=st.blend_tol, block_time=block_time, rotation=st.rotation(),
+            **kw,
         )
         st.pos = [endt[0], endt[1], endt[2]]
 
@@ -670,6 +684,8 @@ class _Interpreter:
             block needs the general interpreter (which then judges it).
         """
         st = self.st
+        if st.rotation() != 0.0:
+            return 0  # a rotated work system: the general interpreter turns the words block by block
         count = nums.shape[0]
         vals = nums[:, 0:3]
         cvals = nums[:, 3:6]
@@ -827,7 +843,8 @@ class _Interpreter:
         if st.cutter_comp:
             raise self.error(line, "G5.1 with cutter radius compensation is not allowed")
         p0 = np.array(st.pos[:2])
-        p1 = p0 + np.array([letters["I"].value, letters["J"].value]) * st.unit
+        # I, J are a program-frame vector: turned with the work system (a Bézier curve turns with its points)
+        p1 = p0 + np.array(turn_xy(letters["I"].value * st.unit, letters["J"].value * st.unit, st.rotation()))
         p2 = np.array(target[:2])
         # B''(t) = 2 (p0 - 2 p1 + p2): a chord over dt misses the curve by at most |p0 - 2 p1 + p2| dt^2 / 4
         bend = float(np.hypot(*(p0 - 2.0 * p1 + p2)))
@@ -850,7 +867,19 @@ class _Interpreter:
         st = self.st
         a1, a2, _ = PLANE_AXES[st.plane]
         cw = motion == 20
-        start = st.pos
+        rot = st.rotation()
+        if rot != 0.0:
+            if st.plane != PLANE_XY:
+                # LinuxCNC turns the arc's plane with the work system (emccanon.cc ARC_FEED): an arc in a tilted
+                # plane, which the move table (arcs in G17/G18/G19) cannot hold
+                raise Unmodelled(line, f"an arc in plane G{st.plane} in a rotated work system (G10 R) is not"
+                                       " modelled: LinuxCNC tilts its plane")
+            # the centre is found in the program frame (I/J, R and G90.1 are program numbers), then turned
+            start = st.to_program(st.pos)
+            machine_target, target, c_off = target, st.to_program(target), (0.0, 0.0, 0.0)
+        else:
+            start = st.pos
+            machine_target, c_off = target, off
         rw = letters.get("R")
         center = [float("nan")] * 3
         cwords: list[Word | None] = [letters.get("I"), letters.get("J"), letters.get("K")]
@@ -894,7 +923,7 @@ class _Interpreter:
                 w = cwords[i]
                 v = w.value * st.unit if w is not None else 0.0
                 if st.arc_absolute:
-                    center[i] = (v + off[i]) if w is not None else start[i]
+                    center[i] = (v + c_off[i]) if w is not None else start[i]
                 else:
                     center[i] = start[i] + v
             r0 = math.hypot(start[a1] - center[a1], start[a2] - center[a2])
@@ -909,7 +938,10 @@ class _Interpreter:
         length = _arc_length(start, target, center, a1, a2, lin, cw, turns)
         feed = self._feed_mm_min(length, line, letters)
         kind = MOVE_ARC_CW if cw else MOVE_ARC_CCW
-        self._add(kind, line, tuple(target), flags=flags, words=axis_words, offset=off, feed=feed,
+        if rot != 0.0:
+            center = st.to_machine(center)  # XY plane: the turn keeps the direction (G2 stays clockwise)
+            center[lin] = float("nan")
+        self._add(kind, line, tuple(machine_target), flags=flags, words=axis_words, offset=off, feed=feed,
                   center=(center[0], center[1], center[2]), plane=st.plane, turns=turns,
                   cwords=cwords if rw is None else None, insert_at=blk.end_offset, block_time=self._block_time_s())
 

@@ -10,8 +10,12 @@ Coordinates
 ``start_mm`` / ``end_mm`` / ``center_mm`` are absolute, in millimetres, in one
 consistent frame for the whole program (the program's coordinates plus the
 active work, G92 and G52 offsets, so that a change of work system does not
-make the path jump). ``offset_mm`` is that offset per move: the coordinate as
-the program (and LinuxCNC's interpreter) reports it is ``end_mm - offset_mm``.
+make the path jump). ``offset_mm`` is that offset per move and ``rotation_deg`` the
+XY rotation of its work system (G-code ``G10 L2 R``, degrees, counter-clockwise
+about the work system's Z): the coordinate ``p`` as the program (and LinuxCNC's
+interpreter) reports it is ``end_mm = R(rotation_deg) p + offset_mm``, so
+``p = R(-rotation_deg) (end_mm - offset_mm)`` (:func:`program_frame_mm`), and
+``end_mm - offset_mm`` where there is no rotation (every Klartext program).
 
 Source spans
 ------------
@@ -116,7 +120,7 @@ class MoveTable:
     center_mm : float64 (M, 3)
         Arc centre, mm (NaN for straight moves).
     offset_mm : float64 (M, 3)
-        Offset added to program coordinates to get the consistent frame, mm.
+        Offset added to the (rotated) program coordinates to get the consistent frame, mm.
     plane : int8 (M,)
         17, 18 or 19.
     turns : int16 (M,)
@@ -154,9 +158,13 @@ class MoveTable:
     block_time_s : float64 (M,)
         Time the program gives the block, s: ``60 / F`` under inverse-time feed (``G93``), NaN
         where the feed is a speed and for rapids. A block of zero length still lasts that long.
+    rotation_deg : float64 (M,)
+        XY rotation of the move's work system, degrees (G-code ``G10 L2 P.. R``; 0 for none): program
+        coordinates are turned by it about the work origin before ``offset_mm`` is added (see the
+        module docstring). Arcs in a rotated system are in the XY plane (the reader refuses others).
 
-    ``blend_tol_mm`` and ``block_time_s`` may be left out when a table is built (NaN for every
-    move: no path control, no inverse time).
+    ``blend_tol_mm``, ``block_time_s`` and ``rotation_deg`` may be left out when a table is built
+    (NaN for every move: no path control, no inverse time; 0: no rotation).
     """
 
     kind: NDArray[np.int8]
@@ -184,6 +192,7 @@ class MoveTable:
     insert_at: NDArray[np.int64]
     blend_tol_mm: NDArray[np.float64] = None  # type: ignore[assignment]  # NaN-filled when left out
     block_time_s: NDArray[np.float64] = None  # type: ignore[assignment]  # NaN-filled when left out
+    rotation_deg: NDArray[np.float64] = None  # type: ignore[assignment]  # zero-filled when left out
 
     def __post_init__(self) -> None:
         m = int(self.kind.shape[0])
@@ -191,9 +200,33 @@ class MoveTable:
             self.blend_tol_mm = np.full(m, np.nan)
         if self.block_time_s is None:
             self.block_time_s = np.full(m, np.nan)
+        if self.rotation_deg is None:
+            self.rotation_deg = np.zeros(m)
 
     def __len__(self) -> int:
         return int(self.kind.shape[0])
+
+
+def rotate_xy(vectors_mm: NDArray[np.float64], angle_deg: NDArray[np.float64] | float) -> NDArray[np.float64]:
+    """Vectors (..., 3) turned by ``angle_deg`` (scalar or one per vector) about Z, counter-clockwise as LinuxCNC's
+    ``rotate`` (interp_convert.cc, emccanon.cc): x' = x cos t - y sin t, y' = x sin t + y cos t; Z unchanged. A
+    copy; where the angle is 0 the vector is returned bit for bit."""
+    v = np.array(vectors_mm, dtype=np.float64, copy=True)
+    t = np.radians(np.broadcast_to(np.asarray(angle_deg, dtype=np.float64), v.shape[:-1]))
+    turn = t != 0.0
+    if np.any(turn):
+        c, s = np.cos(t[turn]), np.sin(t[turn])
+        x, y = v[turn, 0].copy(), v[turn, 1].copy()
+        v[turn, 0] = x * c - y * s
+        v[turn, 1] = x * s + y * c
+    return v
+
+
+def program_frame_mm(moves: MoveTable, points_mm: NDArray[np.float64],
+                     index: NDArray[np.int64] | slice = slice(None)) -> NDArray[np.float64]:
+    """Points of the consistent frame (one per move ``index``, shape (n, 3), mm) in the program frame of their
+    move: ``R(-rotation_deg) (p - offset_mm)``, the numbers the program writes (times its unit)."""
+    return rotate_xy(np.asarray(points_mm) - moves.offset_mm[index], -moves.rotation_deg[index])
 
 
 def named_axes(moves: MoveTable) -> NDArray[np.bool_]:
@@ -215,7 +248,7 @@ class MoveTableBuilder:
     _NAMES = (
         "kind", "line", "start", "end", "center", "offset", "plane", "turns", "feed",
         "unit", "command", "flags", "wstart", "wend", "wdec", "wstyle", "winc",
-        "cstart", "cend", "cdec", "cstyle", "cinc", "insert_at", "blend_tol", "block_time",
+        "cstart", "cend", "cdec", "cstyle", "cinc", "insert_at", "blend_tol", "block_time", "rotation",
     )
 
     def __init__(self) -> None:
@@ -266,11 +299,12 @@ class MoveTableBuilder:
         insert_at: int = -1,
         blend_tol: float = BLEND_PROFILE,
         block_time: float = float("nan"),
+        rotation: float = 0.0,
     ) -> int:
         """Append one move; returns its command index k, or -1 if not a command.
 
-        ``blend_tol`` and ``block_time`` are :attr:`MoveTable.blend_tol_mm` (mm) and
-        :attr:`MoveTable.block_time_s` (s) of the move.
+        ``blend_tol``, ``block_time`` and ``rotation`` are :attr:`MoveTable.blend_tol_mm` (mm),
+        :attr:`MoveTable.block_time_s` (s) and :attr:`MoveTable.rotation_deg` (degrees) of the move.
         """
         c = self._cols
         k = -1
@@ -302,6 +336,7 @@ class MoveTableBuilder:
         c["insert_at"].append(insert_at)
         c["blend_tol"].append(blend_tol)
         c["block_time"].append(block_time)
+        c["rotation"].append(rotation)
         return k
 
     def uncommand_last(self) -> bool:
@@ -369,6 +404,7 @@ class MoveTableBuilder:
             insert_at=np.array(c["insert_at"], dtype=np.int64),
             blend_tol_mm=np.array(c["blend_tol"], dtype=np.float64),
             block_time_s=np.array(c["block_time"], dtype=np.float64),
+            rotation_deg=np.array(c["rotation"], dtype=np.float64),
         )
 
 
