@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 import shutil
 import subprocess
@@ -26,6 +27,7 @@ from ilcnc.program.model import (
     program_frame_mm,
     rotate_xy,
 )
+from ilcnc.program.rewrite import apply_corrections
 
 from .conftest import OWN, SAMPLES, SHARED_SAMPLES, sample_files, shared_sample_reason
 
@@ -569,3 +571,41 @@ def test_rotated_work_system_moves_and_refusals() -> None:
     # a new rotation of the active system under a G92 offset: LinuxCNC's interpreter loses its position
     g92 = _read("G21\nG1 X1 F100\nG92 X0\nG10 L2 P1 R30\nG1 X1\nM2\n")
     assert g92.unsupported is not None and g92.unsupported[0] == 4 and "G92" in g92.unsupported[1]
+
+
+@pytest.mark.parametrize("path", [SAMPLES / "interp" / "lcnc_g10-l2-while-active.ngc",
+                                  Path(__file__).with_name("data") / "rotated_frames.ngc"], ids=lambda p: p.name)
+def test_corrections_in_rotated_work_systems_land_on_the_machine(path: Path) -> None:
+    """Corrections are machine-frame vectors; in a work system turned by G10 L2 R the writer turns them back into
+    the program's numbers (absolute and G91 words, I/J of the arcs after them), adding the axis word a turned
+    correction needs. Re-read, every command ends at its original end plus its correction."""
+    prog = read_program(path)
+    assert prog.unsupported is None
+    turned = prog.moves.rotation_deg[prog.command_moves] != 0.0
+    assert turned.any()
+    n = prog.n_commands
+    rng = np.random.default_rng(21)
+    # 2-5 µm in X and Y (arc starts stay on their circles, within LinuxCNC's 0.028 mm), some X only
+    corr = np.zeros((n, 3))
+    corr[:, :2] = rng.uniform(2e-3, 5e-3, (n, 2)) * rng.choice([-1.0, 1.0], (n, 2))
+    corr[::3, 1] = 0.0
+    # polar words (@ ^) take no correction in any frame (both computed words sit on one span: "overlapping
+    # rewrites", also without rotation): their line is left as it is
+    polar_line = [i + 1 for i, t in enumerate(prog.text.split("\n")) if "@" in t]
+    corr[np.isin(prog.command_line, polar_line)] = 0.0
+    text, edits = apply_corrections(prog, corr, min_decimals=6)
+    assert edits
+    again = read_gcode(path, text.encode("latin-1"))
+    assert again.unsupported is None and again.n_commands == n
+    # each written number is rounded to 6 decimals of the program unit (half a unit of the 6th decimal); a turned
+    # frame mixes the X and Y numbers into each machine axis (|cos| + |sin| <= sqrt 2)
+    tol = 0.5e-6 * float(prog.moves.unit_mm.max()) * math.sqrt(2.0) + 1e-12
+    assert np.abs(again.command_end_mm - (prog.command_end_mm + corr)).max() <= tol
+    # every other move ends where it did
+    other = again.moves.command < 0
+    assert np.all(np.abs(again.moves.end_mm[other] - prog.moves.end_mm[prog.moves.command < 0]) <= tol)
+    # a turned X-only correction on a line that names X only (a G91 'X-5' in rotated_frames.ngc, an absolute 'y' in
+    # the LinuxCNC sample) gets the other axis word added
+    added = [e for e in edits if e.start == e.end]
+    assert any(turned[k] and corr[k, 1] == 0.0 for k in range(n))
+    assert added, "no axis word was added for a correction that the rotation turned onto the other axis"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
+from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable, program_frame_mm
 
 
 def arc_sweep_rad(moves: MoveTable) -> NDArray[np.float64]:
@@ -50,8 +50,11 @@ def extents_mm(moves: MoveTable, *, program_frame: bool = True) -> NDArray[np.fl
     """Axis-aligned extents of all end points (and arc quadrant points), shape (2, 3): min, max."""
     if len(moves) == 0:
         return np.zeros((2, 3))
-    off = moves.offset_mm if program_frame else 0.0
-    pts = [moves.end_mm - off, moves.start_mm - off]
+    def frame(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        return program_frame_mm(moves, p) if program_frame else p
+
+    start, end, centre = frame(moves.start_mm), frame(moves.end_mm), frame(moves.center_mm)
+    pts = [end, start]
     is_arc = moves.kind >= MOVE_ARC_CW
     if is_arc.any():
         sweep = arc_sweep_rad(moves)
@@ -59,7 +62,8 @@ def extents_mm(moves: MoveTable, *, program_frame: bool = True) -> NDArray[np.fl
             sel = np.flatnonzero(is_arc & (moves.plane == plane))
             if sel.size == 0:
                 continue
-            s, c = moves.start_mm[sel], moves.center_mm[sel]
+            # quadrant points of the frame asked for (a turned arc's extremes are those of its own frame)
+            s, c = start[sel], centre[sel]
             r = np.hypot(s[:, a1] - c[:, a1], s[:, a2] - c[:, a2])
             t0 = np.arctan2(s[:, a2] - c[:, a2], s[:, a1] - c[:, a1])
             cw = moves.kind[sel] == MOVE_ARC_CW
@@ -69,10 +73,10 @@ def extents_mm(moves: MoveTable, *, program_frame: bool = True) -> NDArray[np.fl
                 hit = rel <= sweep[sel]
                 if not hit.any():
                     continue
-                p = moves.start_mm[sel][hit].copy()
+                p = s[hit].copy()
                 p[:, a1] = c[hit, a1] + r[hit] * np.cos(ang)
                 p[:, a2] = c[hit, a2] + r[hit] * np.sin(ang)
-                pts.append(p - (moves.offset_mm[sel][hit] if program_frame else 0.0))
+                pts.append(p)
     allp = np.concatenate(pts)
     return np.stack([allp.min(axis=0), allp.max(axis=0)])
 

@@ -454,6 +454,9 @@ def _plan_move(program: Program, i: int, fractions: list[float], known: NDArray[
     for bit, why in _UNSAFE_FLAGS.items():
         if fl & bit:
             return why
+    if float(mv.rotation_deg[i]) != 0.0:
+        # the inserted points are written as absolute numbers of the unturned frame (start + fraction of the move)
+        return "a rotated work system (G10 L2 R)"
     if math.isfinite(float(mv.block_time_s[i])):
         return "inverse-time feed (G93): the block time would be given to each piece"
     if moves_on_line != 1:

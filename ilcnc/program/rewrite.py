@@ -11,6 +11,11 @@ somewhere else than wanted:
 * an arc whose start moved keeps its centre (incremental I/J/K, ``CC IX``
   are rewritten) and its end point.
 
+Corrections are in the consistent (machine) frame. In a work system turned by
+``G10 L2 R`` the words are numbers of the turned frame: a move's wanted end is
+turned back into it before its words are written, so an X-only correction there
+may change the Y word too, or add one (a missing word is inserted as above).
+
 Numbers are written with the decimals the source used, at least
 ``min_decimals``, in the spelling of the source word (sign, comma, leading
 zero, trailing dot).
@@ -37,6 +42,7 @@ from ilcnc.program.model import (
     STYLE_TRAILING_DOT,
     Program,
     arc_off_circle,
+    rotate_xy,
 )
 from ilcnc.units import AXIS_LETTERS, CENTER_LETTERS
 
@@ -247,7 +253,7 @@ def _fast_moves(program: Program, changed: NDArray[np.bool_], desired: NDArray[n
     mv = program.moves
     moved = np.abs(desired - mv.end_mm) > 1e-12
     has_word = (mv.word_start >= 0) & ((mv.word_style & STYLE_LITERAL) != 0)
-    ok = changed & (mv.kind == MOVE_LINE) & ((mv.flags & (FLAG_HOME | FLAG_MACHINE)) == 0)
+    ok = changed & (mv.kind == MOVE_LINE) & ((mv.flags & (FLAG_HOME | FLAG_MACHINE)) == 0) & (mv.rotation_deg == 0.0)
     ok &= ~np.any(mv.word_incremental, axis=1)
     ok &= np.all(~moved | has_word, axis=1)
     # an axis without a word takes the previous end point (modal): only safe when that did not move
@@ -334,6 +340,14 @@ def _rewrite_move(
         return mv.end_mm[i].copy()
     machine = bool(flags & FLAG_MACHINE)
     off = np.zeros(3) if machine else mv.offset_mm[i]
+    rot = 0.0 if machine else float(mv.rotation_deg[i])
+    end0, start0 = mv.end_mm[i], mv.start_mm[i]
+    if rot != 0.0:
+        # a turned work system (G10 L2 R): its words are numbers of the turned frame, so the wanted end, the real
+        # start and the move as read are turned back into it (offset 0 there) and the end found is turned out again
+        machine_off = off
+        start_real, want, end0, start0 = rotate_xy(np.stack([start_real, want, end0, start0]) - off, -rot)
+        off = np.zeros(3)
     end = start_real.copy()
     for a in range(3):
         ws = int(mv.word_start[i, a])
@@ -344,7 +358,7 @@ def _rewrite_move(
             orig_val = _parse(text[ws:we]) if style & STYLE_LITERAL else None
             new_val = (want[a] - start_real[a]) / unit if inc else (want[a] - off[a]) / unit
             if orig_val is not None and abs(new_val - orig_val) * unit < 1e-9:
-                end[a] = mv.end_mm[i, a] if not inc else start_real[a] + orig_val * unit
+                end[a] = end0[a] if not inc else start_real[a] + orig_val * unit
                 continue
             if not style & STYLE_LITERAL:
                 if klartext:
@@ -354,12 +368,12 @@ def _rewrite_move(
                     )
                 # G-code: the expression plus the correction, exact whatever the parameters hold at run time:
                 # X[#<xscale>*53.] -> X[[#<xscale>*53.]+0.0012] (the value the reader evaluated + the change)
-                now = (mv.end_mm[i, a] - mv.start_mm[i, a]) / unit if inc else (mv.end_mm[i, a] - off[a]) / unit
+                now = (end0[a] - start0[a]) / unit if inc else (end0[a] - off[a]) / unit
                 delta = new_val - now
                 dec = _exact_decimals(round(delta, max(min_decimals, 0) + 3), min_decimals)
                 d_txt = f"{abs(delta):.{dec}f}"
                 if float(d_txt) == 0.0:
-                    end[a] = mv.end_mm[i, a] if not inc else start_real[a] + now * unit
+                    end[a] = end0[a] if not inc else start_real[a] + now * unit
                     continue
                 edits.append(Edit(ws, we, f"[{text[ws:we]}{'-' if delta < 0 else '+'}{d_txt}]", line))
                 written = now + (float(d_txt) if delta >= 0 else -float(d_txt))
@@ -391,6 +405,9 @@ def _rewrite_move(
             inserts.setdefault(pos, []).append((a, word, line))
             written = _parse(s)
         end[a] = start_real[a] + written * unit if inc else written * unit + off[a]
+    if rot != 0.0:
+        start_real = rotate_xy(start_real, rot) + machine_off
+        end = rotate_xy(end, rot) + machine_off
     if mv.kind[i] >= MOVE_ARC_CW:
         _rewrite_center(program, i, start_real, klartext, min_decimals, edits)
     return end
@@ -414,18 +431,24 @@ def _rewrite_center(program: Program, i: int, start_real: NDArray[np.float64], k
         raise CorrectionError(program.path, line, f"the correction before this arc moves its start"
                               f" {abs(r1 - r0):.4f} mm off its circle (radius {r1:.4f} mm): a control refuses such an"
                               " arc; correct the point along the circle")
+    # the centre relative to the real start, in the (turned) program frame the I/J/K words are numbers of
+    rot = float(mv.rotation_deg[i])
+    rel = rotate_xy(mv.center_mm[i] - start_real, -rot)
+    same = start_real == mv.start_mm[i]
+    if rot != 0.0:
+        same[:] = bool(np.all(same))  # a turned frame mixes X and Y
     for a in range(3):
         cs = int(mv.center_start[i, a])
         if cs < 0 or not mv.center_incremental[i, a]:
             continue
-        if start_real[a] == mv.start_mm[i, a]:
+        if same[a]:
             continue
         style = int(mv.center_style[i, a])
         if not style & STYLE_LITERAL:
             raise CorrectionError(program.path, line,
                                   f"the arc centre word {_CENTER_LETTERS[a]} holds a parameter and cannot be kept")
         ce = int(mv.center_end[i, a])
-        new_val = (mv.center_mm[i, a] - start_real[a]) / unit
+        new_val = rel[a] / unit
         src_dec, style = spelling(text[cs:ce])
         dec = max(src_dec, min_decimals)
         edits.append(Edit(cs, ce, format_number(new_val, dec, style, klartext=klartext), line))

@@ -165,6 +165,10 @@ def _refuse_unconvertible(program: Program, family: str) -> None:
         if big.size:
             raise InputError(program.path, int(mv.line[big[0] % len(mv)]), "a coordinate beyond 99999.9999, more than"
                              " a Klartext program holds: not converted")
+    turned = np.flatnonzero(mv.rotation_deg != 0.0)
+    if turned.size:  # the writers write offsets as shifts (G52, cycle 7), never a rotation
+        raise InputError(program.path, int(mv.line[turned[0]]), "a move in a rotated work system (G10 L2 R): the"
+                         " writers do not write a rotation: not converted")
     comp = np.flatnonzero(mv.flags & FLAG_CUTTER_COMP)
     if comp.size:
         raise InputError(program.path, int(mv.line[comp[0]]), "cutter radius compensation (G41/G42, RL/RR) is not"

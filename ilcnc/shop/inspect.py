@@ -11,7 +11,7 @@ import numpy as np
 from ilcnc.fileio import write_atomic
 from ilcnc.program import Program, read_program
 from ilcnc.program.geometry import extents_mm, feed_time_s, move_lengths_mm
-from ilcnc.program.model import MOVE_RAPID
+from ilcnc.program.model import MOVE_RAPID, program_frame_mm
 
 __all__ = ["InspectReport", "command_table_csv", "corner_rounding_warnings", "inspect_program", "print_report"]
 
@@ -59,7 +59,7 @@ def command_table_csv(program: Program) -> str:
     """The command table ``k,line,x,y,z,f`` (program frame, mm, mm/min)."""
     idx = program.command_moves
     mv = program.moves
-    pts = mv.end_mm[idx] - mv.offset_mm[idx]
+    pts = program_frame_mm(mv, mv.end_mm[idx], idx)
     feed = mv.feed_mm_min[idx]
     lines = mv.line[idx]
     out = ["k,line,x,y,z,f"]
