@@ -541,7 +541,8 @@ def _print_learning(outcome, console) -> None:
     if len(outcome.clips) > 20:
         console.print(f"clipped: {len(outcome.clips) - 20} more (see --json or --report)")
     if outcome.frozen:
-        console.print(f"{outcome.frozen} commands are never corrected (repeated, parametric, polar or machine moves)")
+        why = "; ".join(f"{n} {reason}" for reason, n in outcome.frozen_reasons.items())
+        console.print(f"{outcome.frozen} commands are never corrected ({why or 'repeated, polar or machine moves'})")
     for n in outcome.notes:
         console.print(n)
     console.print(f"status: {outcome.status}: {outcome.message}")

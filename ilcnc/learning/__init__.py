@@ -22,8 +22,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     'learner': (
         'CLIP_ARC', 'CLIP_BOUND', 'CLIP_MOVE_LENGTH', 'Clip', 'IterationRecord', 'LearnResult', 'Learner',
-        'UpdateShaper', 'changed_coordinates', 'clip_corrections', 'correctable_commands', 'keep_arcs_valid',
-        'keep_moves_forward', 'learn_virtual', 'program_with_corrections'
+        'UpdateShaper', 'changed_coordinates', 'clip_corrections', 'correctable_commands', 'frozen_reasons',
+        'keep_arcs_valid', 'keep_moves_forward', 'learn_virtual', 'program_with_corrections'
     ),
     'lifted_check': (
         'DEFAULT_GAMMAS', 'DEFAULT_MAX_COMMANDS', 'DEFAULT_Q_FILTERS_HZ', 'LiftedCandidate', 'LiftedCheck',

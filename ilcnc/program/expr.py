@@ -46,19 +46,28 @@ class Parameters:
     set before use.
     """
 
-    __slots__ = ("named", "numbered", "permissive")
+    __slots__ = ("named", "numbered", "permissive", "position_read")
 
     def __init__(self, *, permissive: bool = False) -> None:
         self.numbered: dict[int, float] = {}
         self.named: dict[str, float] = {}
         #: syntax checking only: undefined values read as 0 instead of raising
         self.permissive = permissive
+        #: a current-position parameter (#5420..#5428, LinuxCNC) was read since :meth:`take_position_read`
+        self.position_read = False
+
+    def take_position_read(self) -> bool:
+        """True if #5420..#5428 (the current position) were read since the last call; clears the mark."""
+        read, self.position_read = self.position_read, False
+        return read
 
     def get_numbered(self, n: int) -> float:
         if n < 1 or n > 5601:
             if self.permissive:
                 return 0.0
             raise ExprValueError(f"parameter number #{n} out of range 1..5601")
+        if 5420 <= n <= 5428:
+            self.position_read = True
         return self.numbered.get(n, 0.0)
 
     def get_named(self, name: str) -> float:

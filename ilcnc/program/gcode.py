@@ -27,8 +27,9 @@ import numpy as np
 from ilcnc.errors import ProgramError
 from ilcnc.program.expr import Parameters
 from ilcnc.program.gcode_flow import has_control_flow, run_control_flow
-from ilcnc.program.gcode_frame import WorkFrames, turn_xy
+from ilcnc.program.gcode_frame import POSITION_READING_CYCLES, WorkFrames, position_reader, turn_xy
 from ilcnc.program.gcode_lexer import MAX_NUMBER, Block, Lexer, Word
+from ilcnc.program.geometry import arc_length_mm
 from ilcnc.program.model import (
     BLEND_EXACT_PATH,
     BLEND_EXACT_STOP,
@@ -39,6 +40,7 @@ from ilcnc.program.model import (
     FLAG_HOME,
     FLAG_MACHINE,
     FLAG_PARAMETRIC,
+    FLAG_POLAR,
     MAX_ARC_TURNS,
     MAX_CYCLE_REPEATS,
     MOVE_ARC_CCW,
@@ -109,7 +111,7 @@ MAX_SPLINE_CHORDS = 100_000
 
 #: G codes that use a Q word (G5, G10, G64, G73, G76, G83), as round(value * 10).
 _Q_CODES = frozenset({50, 100, 640, 730, 760, 830})
-_CYCLES = frozenset({730, 810, 820, 830, 850, 860, 890})
+_CYCLES = POSITION_READING_CYCLES
 _CS_CODES = {540: 1, 550: 2, 560: 3, 570: 4, 580: 5, 590: 6, 591: 7, 592: 8, 593: 9}
 
 
@@ -161,7 +163,9 @@ class _Interpreter:
             return
         st = self.st
         words = blk.words
+        position_read = self.params.take_position_read()  # #5420..#5428 in this block's expressions
         if not words:
+            self._read_position("#5420..#5428 read the current position" if position_read else None, blk.line)
             self._assign(blk)
             return
         letters: dict[str, Word] = {}
@@ -258,6 +262,9 @@ class _Interpreter:
             raise self.error(line, "two G codes that use axis words in one block")
         if motion_codes and axis_group0 and has_axis:
             raise self.error(line, "axis words used by both a motion and a non-modal G code")
+        self._read_position(position_reader(gcodes, letters["L"].value if "L" in letters else None, has_axis, motion_codes,
+                                            st.motion, st.absolute, self.polar_words if blk.polar else None,
+                                            position_read), line)
         machine = 530 in group0
         for c in group0:
             if c == 100:
@@ -314,6 +321,12 @@ class _Interpreter:
             if mc in (2, 30, 60) and mc != 60:
                 self.ended = True
         self._assign(blk)
+
+    def _read_position(self, why: str | None, line: int) -> None:
+        """The block at ``line`` reads the current position (``why``, :func:`position_reader`): a G1 ending there is
+        never corrected (its correction would move all the block sets up); a reader warning names both lines."""
+        if why and (at := self.builder.freeze_last()) > 0:
+            self.warnings.append(f"line {line}: {why}: the G1 at line {at} ending there is never corrected")
 
     def _path_control(self, codes: list[int], letters: dict[str, Word], line: int) -> None:
         """G61, G61.1, G64 [P] [Q]: the path control mode of the following moves (``MoveTable.blend_tol_mm``).
@@ -639,7 +652,7 @@ class _Interpreter:
         if st.cutter_comp:
             flags |= FLAG_CUTTER_COMP
         if any(w is not None and not (w.style & STYLE_LITERAL) for w in axis_words):
-            flags |= FLAG_PARAMETRIC
+            flags |= FLAG_PARAMETRIC | (FLAG_POLAR if self.polar_words != (None, None) else 0)
         has_rotary = any(a in letters for a in "ABC")
         if motion == 0:
             self._add(MOVE_RAPID, line, tuple(target), flags=flags, words=axis_words, offset=off,
@@ -935,7 +948,7 @@ class _Interpreter:
                 raise self.error(line, f"arc radius to end ({r1:.4f} mm) differs from radius to start ({r0:.4f} mm)")
         lin = PLANE_AXES[st.plane][2]
         center[lin] = float("nan")
-        length = _arc_length(start, target, center, a1, a2, lin, cw, turns)
+        length = arc_length_mm(start, target, center, a1, a2, lin, cw, turns)
         feed = self._feed_mm_min(length, line, letters)
         kind = MOVE_ARC_CW if cw else MOVE_ARC_CCW
         if rot != 0.0:
@@ -951,19 +964,6 @@ def _ffill(values: np.ndarray, valid: np.ndarray, initial: float) -> np.ndarray:
     idx = np.where(valid, np.arange(values.shape[0]), -1)
     np.maximum.accumulate(idx, out=idx)
     return np.where(idx >= 0, values[np.maximum(idx, 0)], initial)
-
-
-def _arc_length(start: list[float], end: list[float], center: list[float], a1: int, a2: int, lin: int, cw: bool,
-                turns: int) -> float:
-    r = math.hypot(start[a1] - center[a1], start[a2] - center[a2])
-    t0 = math.atan2(start[a2] - center[a2], start[a1] - center[a1])
-    t1 = math.atan2(end[a2] - center[a2], end[a1] - center[a1])
-    sweep = (t0 - t1) if cw else (t1 - t0)
-    sweep %= 2 * math.pi
-    if sweep < 1e-12:
-        sweep = 2 * math.pi
-    sweep += 2 * math.pi * (turns - 1)
-    return math.hypot(r * sweep, end[lin] - start[lin])
 
 
 class _Lines:

@@ -19,7 +19,47 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-__all__ = ["WorkFrames", "turn_xy"]
+__all__ = ["POSITION_READING_CYCLES", "WorkFrames", "position_reader", "turn_xy"]
+
+
+#: Canned cycles ilcnc reads (round(G * 10)): G73 G81 G82 G83 G85 G86 G89.
+POSITION_READING_CYCLES = frozenset({730, 810, 820, 830, 850, 860, 890})
+
+
+def position_reader(gcodes: list[int], l_word: float | None, axis_words: bool, motion_codes: list[int],
+                    motion: int, absolute: bool, polar: tuple[float | None, float | None] | None,
+                    parameter_read: bool) -> str | None:
+    """What in one block reads the tool's current position before the block moves, as LinuxCNC's interpreter does
+    (its G-code reference: "Coordinate Systems", "G92", "G10 L20", "G28.1", "Canned Cycles", "G5.1", "Polar
+    Coordinates", "Numbered Parameters" #5420..#5428); None if nothing does.
+
+    ``gcodes`` are the block's G codes (round(G * 10)), ``l_word`` its L value, ``axis_words`` whether it has axis
+    words, ``motion_codes`` its motion G codes and ``motion`` the modal motion before it, ``absolute`` the distance
+    mode it runs in (G90), ``polar`` its ``@`` and ``^`` values (None without polar words) and ``parameter_read``
+    whether an expression of it read #5420..#5428. Such a block takes the end point of the move before it; when that
+    is a corrected G1 the correction would move everything the block sets up (an offset, a stored home, a hole, a
+    spline), so the reader marks that command never to be corrected (``FLAG_POSITION_READ``).
+    """
+    if parameter_read:
+        return "#5420..#5428 read the current position"
+    if 920 in gcodes:
+        return "G92 sets its offset from the current position"
+    if 100 in gcodes and l_word is not None and round(l_word) in (10, 11, 20):
+        return f"G10 L{round(l_word)} sets its offset from the current position"
+    if 281 in gcodes or 301 in gcodes:
+        return f"G{28 if 281 in gcodes else 30}.1 stores the current position"
+    if (280 in gcodes or 300 in gcodes) and axis_words and not absolute:
+        return f"G{28 if 280 in gcodes else 30} in G91 goes through a point measured from the current position"
+    if any(c in (100, 280, 300, 520, 920) for c in gcodes):
+        return None  # the axis words belong to that code: no motion in this block
+    mode = motion_codes[0] if motion_codes else motion
+    if mode in POSITION_READING_CYCLES and (axis_words or bool(motion_codes)):
+        return f"canned cycle G{mode / 10:g} starts from the current position (its retract, initial level, hole)"
+    if mode == 51 and axis_words:
+        return "G5.1 starts its spline at the current position"
+    if polar is not None and (not absolute or None in polar):
+        return "a polar move measured from the current position"
+    return None
 
 
 def turn_xy(x: float, y: float, angle_deg: float) -> tuple[float, float]:

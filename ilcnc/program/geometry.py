@@ -2,10 +2,27 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable, program_frame_mm
+
+
+def arc_length_mm(start: list[float], end: list[float], center: list[float], a1: int, a2: int, lin: int, cw: bool,
+                  turns: int) -> float:
+    """Length of one arc or helix, mm: from ``start`` to ``end`` (mm) about ``center`` in the plane of axes ``a1``,
+    ``a2`` (``lin`` the helix axis), clockwise if ``cw``, with ``turns`` full turns (1: less than one)."""
+    r = math.hypot(start[a1] - center[a1], start[a2] - center[a2])
+    t0 = math.atan2(start[a2] - center[a2], start[a1] - center[a1])
+    t1 = math.atan2(end[a2] - center[a2], end[a1] - center[a1])
+    sweep = (t0 - t1) if cw else (t1 - t0)
+    sweep %= 2 * math.pi
+    if sweep < 1e-12:
+        sweep = 2 * math.pi
+    sweep += 2 * math.pi * (turns - 1)
+    return math.hypot(r * sweep, end[lin] - start[lin])
 
 
 def arc_sweep_rad(moves: MoveTable) -> NDArray[np.float64]:

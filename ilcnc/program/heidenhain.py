@@ -132,6 +132,7 @@ from ilcnc.program.model import (
     FLAG_MACHINE,
     FLAG_PARAMETRIC,
     FLAG_POLAR,
+    FLAG_POSITION_READ,
     FLAG_REPEATED,
     MAX_ARC_TURNS,
     MOVE_ARC_CCW,
@@ -696,6 +697,16 @@ class _Interp:
         plane = _PAIR_PLANE.get(frozenset(axes), self.plane) if len(axes) == 2 else self.plane
         if len(axes) > 2:
             raise Stop(line, "CC with three coordinates: the plane of the circle is ambiguous")
+        if not {PLANE_AXES[plane][0], PLANE_AXES[plane][1]} <= axes:
+            # a pole coordinate not given is the last programmed position's: the move ending there is never corrected
+            if self.pending is not None:
+                at = -1 if self.pending[R_FLAGS] & FLAG_POLAR or self.pending[R_CORR] is False else self.pending[R_LINE]
+                self.pending[R_FLAGS] |= FLAG_POSITION_READ
+            else:
+                at = self.b.freeze_last()
+            if at > 0:
+                self.warnings.append(f"line {line}: CC without both pole coordinates takes the current position: the"
+                                     f" L at line {at} ending there is never corrected")
         self.pole = (prog, plane)
         self.cc_spans = (cs, ce, cd, cst, ci, list(self.pos))
         return None

@@ -163,6 +163,7 @@ class LearnOutcome:
     message: str
     clips: list[Clip] = field(default_factory=list)
     frozen: int = 0
+    frozen_reasons: dict[str, int] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     report_files: list[Path] = field(default_factory=list)
     reduction_rms: float = 0.0
@@ -184,6 +185,7 @@ class LearnOutcome:
             "clipped": [{"k": c.k, "line": c.line, "axis": c.axis, "wanted_mm": c.wanted_mm, "applied_mm": c.applied_mm,
                          "cause": c.cause} for c in self.clips],
             "frozen_commands": self.frozen,
+            "frozen_reasons": self.frozen_reasons,
             "air_commands": self.air_commands,
             "cutting_rule": self.cutting,
             "refined": self.refined,
@@ -436,6 +438,7 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
                            cutting_rule="" if rule is None else rule.describe(),
                            cutting=None if rule is None else rule.to_json(), refined=state.part.get("refined"))
     outcome.feed = None if result.feed is None else result.feed.to_json()
+    outcome.frozen_reasons = dict(result.frozen_reasons)
     if req.report is not None:
         outcome.report_files = _report_virtual(req, learning, result, best_rec)
     return outcome
