@@ -30,7 +30,8 @@ from ilcnc.shop.linuxcnc_hal import HalConfig, read_hal
 from ilcnc.units import AXIS_NAMES, MM_PER_INCH
 from ilcnc.vcnc.plan_tp import GAP_CYCLES, LOOKAHEAD_SEGMENTS
 
-__all__ = ["LINEAR_UNITS", "NO_JERK_M_S3", "RESOLUTION_MM", "AxisFromIni", "IniProfile", "joints_of_axes", "profile_from_ini", "write_ini_profile"]
+__all__ = ["LINEAR_UNITS", "NO_JERK_M_S3", "RESOLUTION_MM", "AxisFromIni", "IniProfile", "joints_of_axes",
+           "profile_from_ini", "write_ini_profile"]
 
 #: ``[TRAJ] LINEAR_UNITS`` names LinuxCNC accepts, and the profile unit each means.
 LINEAR_UNITS: dict[str, str] = {"mm": "mm", "metric": "mm", "in": "inch", "inch": "inch", "imperial": "inch"}
