@@ -33,7 +33,11 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'linuxcnc_hal': ('DEFAULT_HALLIB', 'HalConfig', 'HalSetting', 'hallib_dir', 'read_hal', 'resolve_hal_file'),
     'linuxcnc_profile': (
         'LINEAR_UNITS', 'NO_JERK_M_S3', 'RESOLUTION_MM', 'AxisFromIni', 'IniProfile', 'joints_of_axes',
-        'profile_from_ini', 'write_ini_profile'
+        'profile_from_ini', 'startup_path_control', 'write_ini_profile'
+    ),
+    'linuxcnc_prepare': (
+        'DEFAULT_SAMPLER_DEPTH', 'PathRange', 'PathSetting', 'Preparation', 'path_ranges', 'path_settings',
+        'prepare_run', 'sampler_hal'
     ),
     'log_identity': (
         'LogIdentity', 'MIN_ON_PATH_SHARE', 'check_block_numbers', 'check_log_identity', 'check_log_order',

@@ -31,7 +31,7 @@ from ilcnc.units import AXIS_NAMES, MM_PER_INCH
 from ilcnc.vcnc.plan_tp import GAP_CYCLES, LOOKAHEAD_SEGMENTS
 
 __all__ = ["LINEAR_UNITS", "NO_JERK_M_S3", "RESOLUTION_MM", "AxisFromIni", "IniProfile", "joints_of_axes",
-           "profile_from_ini", "write_ini_profile"]
+           "profile_from_ini", "startup_path_control", "write_ini_profile"]
 
 #: ``[TRAJ] LINEAR_UNITS`` names LinuxCNC accepts, and the profile unit each means.
 LINEAR_UNITS: dict[str, str] = {"mm": "mm", "metric": "mm", "in": "inch", "inch": "inch", "imperial": "inch"}
@@ -276,8 +276,13 @@ def _drive(hal: HalConfig, axis: str, joints: tuple[int, ...], period_s: float,
     )
 
 
-def _startup_path_control(ini: IniFile, mm: float, notes: list[str]) -> tuple[str, float | None, str]:
-    """``planner.path_control`` and the tolerance the control starts with (``RS274NGC_STARTUP_CODE``)."""
+def startup_path_control(ini: IniFile) -> tuple[str, float | None, str]:
+    """The path control LinuxCNC starts in (``[RS274NGC] RS274NGC_STARTUP_CODE``).
+
+    Returns ``planner.path_control``'s value (``g64``, ``tolerance``, ``g61``, ``g61.1``), the ``G64 P``
+    tolerance in mm (None without one) and the INI line it comes from, for a comment.
+    """
+    mm = _units(ini)[1]
     iv = ini.get("RS274NGC", "RS274NGC_STARTUP_CODE")
     if iv is None:
         return "g64", None, "[RS274NGC] RS274NGC_STARTUP_CODE not set: LinuxCNC starts in G64 without P"
@@ -355,7 +360,7 @@ def profile_from_ini(path: str | Path) -> IniProfile:
             *(f"      {k}: {val}  # {c}" for k, val, c in drive),
         ]
     defaults += [f"axes.{a.name}.max_jerk_m_s3" for a in axes]
-    mode, tol, mode_src = _startup_path_control(ini, mm, notes)
+    mode, tol, mode_src = startup_path_control(ini)
     if tol is None:
         tol = float(default_of("planner.corner_tolerance_mm"))
         tol_c = (f"not from the INI: the P to give the program's G64 P{_g(tol)} Q0 (ilcnc linuxcnc prepare says"
