@@ -105,8 +105,12 @@ class IniProfile:
 
 
 def _g(v: float) -> str:
-    """A number for the YAML: up to 10 significant digits, integers without a dot."""
-    return f"{v:.10g}"
+    """A number for the YAML: up to 10 significant digits, integers without a dot (``1.0e-06``: YAML 1.1 reads
+    ``1e-06`` as a string)."""
+    s = f"{v:.10g}"
+    if "e" in s and "." not in s.split("e")[0]:
+        s = s.replace("e", ".0e", 1)
+    return s
 
 
 def _units(ini: IniFile) -> tuple[str, float]:
@@ -387,7 +391,7 @@ def profile_from_ini(path: str | Path) -> IniProfile:
         f"  units: {unit}  # [TRAJ] LINEAR_UNITS = {ini.get('TRAJ', 'LINEAR_UNITS').value}",  # type: ignore[union-attr]
         f"  servo_period_s: {_g(period_s)}  # [EMCMOT] SERVO_PERIOD = {sp.value} ns",
         f"  resolution_mm: {_g(RESOLUTION_MM)}  # not from the INI: LinuxCNC reads any number of decimals",
-        *(["  # travel_mm: [AXIS_L] MIN_LIMIT / MAX_LIMIT, machine coordinates. ilcnc checks it against the",
+        *(["  # The travel, [AXIS_L] MIN_LIMIT / MAX_LIMIT, is in machine coordinates. ilcnc checks it against the",
            "  # program's coordinates: uncomment it only where the work offsets are zero.",
            "  # travel_mm:", *travel_lines] if travel_lines else []),
         "",
