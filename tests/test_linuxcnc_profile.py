@@ -14,13 +14,13 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from tests.conftest import OWN, REPO, cli_output
 from ilcnc.cli import app
 from ilcnc.errors import InputError
 from ilcnc.outcomes import DriveSource
 from ilcnc.profile.load import load_profile
 from ilcnc.shop.linuxcnc_profile import profile_from_ini
 from ilcnc.units import MM_PER_INCH
+from tests.conftest import OWN, REPO, cli_output
 
 runner = CliRunner()
 SIM_INI = REPO / "configs" / "linuxcnc-sim" / "sim.ini"
