@@ -1057,6 +1057,93 @@ def linuxcnc_run(
         typer.echo(f"LinuxCNC: {m}")
 
 
+@linuxcnc_app.command("profile")
+def linuxcnc_profile(
+    ini: Annotated[Path, typer.Argument(help="The machine's LinuxCNC INI (its HAL files are read too).")],
+    out: Annotated[Path | None, typer.Option("--out", help="Profile YAML to write (default: print it).")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing --out file.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object (with the profile text).")] = False,
+) -> None:
+    """Write a machine profile from a LinuxCNC INI: units, limits, servo period, path control, drives.
+
+    Every value carries a comment naming its INI key or HAL line; values the configuration cannot give are
+    ilcnc defaults, marked 'not from the INI' with what to measure (docs/linuxcnc.md 3).
+    """
+    from ilcnc.shop.linuxcnc_profile import profile_from_ini, write_ini_profile
+
+    try:
+        res = profile_from_ini(ini)
+        if out is not None:
+            write_ini_profile(res, out, force=force)
+    except IlcncError as exc:
+        _fail(exc)
+    if as_json:
+        typer.echo(json.dumps({**res.to_json(), "out": str(out) if out else None, "text": res.text}))
+        return
+    if out is None:
+        typer.echo(res.text, nl=False)
+        return
+    typer.echo(f"wrote {out} from {ini.name}: {res.units}, servo period {res.servo_period_s * 1e3:g} ms,"
+               f" path control {res.path_control} (corner tolerance {res.corner_tolerance_mm:g} mm)")
+    t = _table("axes")
+    for col in ("axis", "joints", "velocity mm/min", "accel m/s²", "drive"):
+        t.add_column(col, overflow="fold")
+    for a in res.axes:
+        t.add_row(a.name, " ".join(map(str, a.joints)) or "-", f"{a.max_velocity_mm_s * 60:g}",
+                  f"{a.max_acceleration_mm_s2 / 1000:g}", str(a.drive))
+    _console().print(t)
+    typer.echo("not from the INI (measure or set by hand): " + ", ".join(res.defaults))
+    for n in res.notes:
+        typer.echo(f"note: {n}")
+
+
+@linuxcnc_app.command("prepare")
+def linuxcnc_prepare(
+    program: Annotated[Path, typer.Argument(help="The G-code program to run on the machine.")],
+    profile: Annotated[Path, typer.Option("--profile", help="The machine's profile (corner tolerance, units).")],
+    ini: Annotated[Path | None, typer.Option("--ini", help="The machine's INI: joints, start-up path control,"
+                                             " servo period and log units from it.")] = None,
+    write_hal: Annotated[Path | None, typer.Option("--write-hal", help="Write the HAL lines to this file.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing --write-hal file.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Say what a log run of PROGRAM on a LinuxCNC machine needs, before the run.
+
+    The path control per line range and the edits that keep corners within the profile's tolerance (G64 P Q0),
+    the HAL lines that record the axes with halsampler, and the commands that record and learn.
+    """
+    from ilcnc.fileio import write_atomic
+    from ilcnc.shop.linuxcnc_prepare import prepare_run
+
+    try:
+        res = prepare_run(program, profile, ini_path=ini)
+        if write_hal is not None:
+            if write_hal.exists() and not force:
+                raise UsageError("--write-hal", f"{write_hal} exists: choose another file or replace it with --force")
+            write_atomic(write_hal, res.hal, protect=(program, profile, *((ini,) if ini else ())))
+    except IlcncError as exc:
+        _fail(exc)
+    if as_json:
+        typer.echo(json.dumps({**res.to_json(), "hal_file": str(write_hal) if write_hal else None}))
+        return
+    typer.echo(f"{program.name}: path control (start-up: {res.startup}):")
+    for r in res.ranges:
+        typer.echo(f"  {r.text(res.units)}")
+    if res.ready:
+        typer.echo(f"ready: every feed move stays within the corner tolerance {res.tolerance_mm:g} mm")
+    else:
+        typer.echo(f"change before the first run (corner tolerance {res.tolerance_mm:g} mm; docs/linuxcnc.md 4):")
+        for c in res.changes:
+            typer.echo(f"  - {c}")
+    for n in res.notes:
+        typer.echo(f"note: {n}")
+    where = f"written to {write_hal}" if write_hal else "save as ilcnc-log.hal"
+    typer.echo(f"HAL ({where}; load it after the machine's HAL files: [HAL] HALFILE = ilcnc-log.hal):")
+    typer.echo(res.hal, nl=False)
+    typer.echo(f"record: {res.record}")
+    typer.echo(f"learn:  {res.learn}")
+
+
 def main() -> None:
     """Console-script entry point."""
     try:

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 from enum import Enum
 
-__all__ = ["CheckStatus", "GuardVerdict", "LearnMode", "LearnStatus", "LiftedStatus", "ModelStepEnd", "PartStatus", "StrEnum"]
+__all__ = ["CheckStatus", "DriveSource", "GuardVerdict", "LearnMode", "LearnStatus", "LiftedStatus", "ModelStepEnd",
+           "PartStatus", "PathMode", "StrEnum"]
 
 
 class StrEnum(str, Enum):
@@ -95,3 +96,22 @@ class CheckStatus(StrEnum):
     PASSED = "passed"  #: every threshold and baseline figure kept
     FAILED = "failed"  #: over a threshold, no cutting move, or regressed against the baseline
     UNREADABLE = "unreadable"  #: the program could not be read or run (an error line says why)
+
+
+class DriveSource(StrEnum):
+    """What a LinuxCNC configuration's HAL does with a joint's position command (``ilcnc linuxcnc profile``)."""
+
+    SERVO_PID = "servo_pid"  #: a ``pid`` loop takes the command: its gains give the position loop
+    STEPGEN = "stepgen"  #: a step generator in position mode: it reaches the command within one servo period
+    LOOPBACK = "loopback"  #: the command is wired straight back as the feedback (a simulation)
+    UNKNOWN = "unknown"  #: none of these (a Tcl HAL file, a drive on a bus): the drive is a default to measure
+
+
+class PathMode(StrEnum):
+    """The path control a stretch of a program runs in (``ilcnc linuxcnc prepare``)."""
+
+    UNSET = "none"  #: no G61/G64 in the program: the control's start-up mode applies
+    EXACT_STOP = "G61.1"  #: stop at every block end
+    EXACT_PATH = "G61"  #: stop at every corner
+    BOUNDED = "G64 P"  #: blend within the P tolerance
+    UNBOUNDED = "G64"  #: blend as fast as the axes allow (no P, or P0)

@@ -53,6 +53,8 @@ def _base(command: str, tmp: Path) -> list[str]:
         "batch": ["batch", str(tmp / "parts"), "--out", str(tmp / "b"), "--profile", str(MILL), "--workers", "1",
                   "--iterations", "1"],
         "linuxcnc run": ["linuxcnc", "run", star, "--log", str(tmp / "run.csv")],
+        "linuxcnc profile": ["linuxcnc", "profile", str(REPO / "configs" / "linuxcnc-sim" / "sim.ini")],
+        "linuxcnc prepare": ["linuxcnc", "prepare", star, "--profile", str(REPO / "configs" / "linuxcnc-sim.yaml")],
     }[command]
 
 

@@ -26,7 +26,19 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'run_lock', 'run_program',
         'stray_percent_line'
     ),
-    'linuxcnc_config': ('ini_in', 'read_ini', 'read_ini_text', 'scale_program_time', 'scaled_ini_text'),
+    'linuxcnc_config': (
+        'IniFile', 'IniValue', 'ini_in', 'read_ini', 'read_ini_file', 'read_ini_text', 'scale_program_time',
+        'scaled_ini_text'
+    ),
+    'linuxcnc_hal': ('DEFAULT_HALLIB', 'HalConfig', 'HalSetting', 'hallib_dir', 'read_hal', 'resolve_hal_file'),
+    'linuxcnc_profile': (
+        'LINEAR_UNITS', 'NO_JERK_M_S3', 'RESOLUTION_MM', 'AxisFromIni', 'IniProfile', 'joints_of_axes',
+        'profile_from_ini', 'startup_path_control', 'write_ini_profile'
+    ),
+    'linuxcnc_prepare': (
+        'DEFAULT_SAMPLER_DEPTH', 'PathRange', 'PathSetting', 'Preparation', 'path_ranges', 'path_settings',
+        'prepare_run', 'sampler_hal'
+    ),
     'log_identity': (
         'LogIdentity', 'MIN_ON_PATH_SHARE', 'check_block_numbers', 'check_log_identity', 'check_log_order',
         'log_quantum_mm', 'samples_fingerprint'

@@ -9,14 +9,17 @@ has every time and rate of the INI and every feed, dwell and time word of the pr
 from __future__ import annotations
 
 import contextlib
+import os
 import re
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes
 
-__all__ = ["ini_in", "read_ini", "read_ini_text", "scale_program_time", "scaled_ini_text"]
+__all__ = ["IniFile", "IniValue", "ini_in", "read_ini", "read_ini_file", "read_ini_text", "scale_program_time",
+           "scaled_ini_text"]
 
 
 # ---------------------------------------------------------------------------
@@ -310,3 +313,122 @@ def read_ini_text(text: str) -> dict[str, dict[str, str]]:
         if m:
             out.setdefault(section, {}).setdefault(m.group(2), m.group(4))
     return out
+
+
+# ---------------------------------------------------------------------------
+# The INI with the file and line of every value (for messages that name them)
+# ---------------------------------------------------------------------------
+
+_INCLUDE = re.compile(r"^#INCLUDE(?:\s+(.*?))?\s*$")
+
+
+@dataclass(frozen=True, slots=True)
+class IniValue:
+    """One ``KEY = value`` of an INI: the value as written and where it is (``#INCLUDE`` files name their own)."""
+
+    section: str
+    key: str
+    value: str
+    file: Path
+    line: int
+
+    @property
+    def where(self) -> str:
+        """``[SECTION] KEY`` as a message names it."""
+        return f"[{self.section}] {self.key}"
+
+    def number(self) -> float:
+        """The value as a number; :class:`InputError` naming the file, line and key when it is none."""
+        try:
+            v = float(self.value)
+        except ValueError:
+            raise InputError(self.file, self.line, f"{self.where} {self.value!r} is not a number") from None
+        if v != v or v in (float("inf"), float("-inf")):
+            raise InputError(self.file, self.line, f"{self.where} {self.value!r} is not a finite number")
+        return v
+
+
+@dataclass(slots=True)
+class IniFile:
+    """A LinuxCNC INI as LinuxCNC reads it: sections, ``#``/``;`` comment lines, repeated keys, ``#INCLUDE``.
+
+    LinuxCNC takes the first value of a repeated key (``HALFILE`` is read as a list); names are matched
+    exactly (upper case by convention). ``#INCLUDE FILE`` is expanded in place, relative to the INI's folder,
+    as the ``linuxcnc`` launcher does; an include it cannot read is skipped with a note in :attr:`notes`
+    (the launcher prints a warning and runs on).
+    """
+
+    path: Path
+    values: dict[str, dict[str, list[IniValue]]] = field(default_factory=dict)
+    section_lines: dict[str, tuple[Path, int]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def folder(self) -> Path:
+        return self.path.parent
+
+    def get(self, section: str, key: str) -> IniValue | None:
+        """The first value of ``[section] key``, or None."""
+        vals = self.values.get(section, {}).get(key)
+        return vals[0] if vals else None
+
+    def get_all(self, section: str, key: str) -> list[IniValue]:
+        """Every value of ``[section] key`` in file order (``[HAL] HALFILE``)."""
+        return list(self.values.get(section, {}).get(key, []))
+
+    def has_section(self, section: str) -> bool:
+        return section in self.section_lines
+
+    def number(self, section: str, key: str) -> float | None:
+        """``[section] key`` as a number (None when absent; :class:`InputError` at its line when not numeric)."""
+        v = self.get(section, key)
+        return None if v is None else v.number()
+
+    def missing(self, section: str, key: str, why: str = "") -> InputError:
+        """The error for a required key that is absent, at its section's line when the section exists."""
+        file, line = self.section_lines.get(section, (self.path, None))
+        tail = f": {why}" if why else ""
+        return InputError(file, line, f"[{section}] {key} is missing{tail}")
+
+
+def read_ini_file(path: str | Path) -> IniFile:
+    """Read a LinuxCNC INI with the file and line of every value (see :class:`IniFile`)."""
+    p = Path(path)
+    if p.is_dir():
+        p = ini_in(p)
+    ini = IniFile(path=p)
+    _read_into(ini, p, [p.resolve()], "")
+    return ini
+
+
+def _read_into(ini: IniFile, p: Path, chain: list[Path], section: str) -> str:
+    text = read_bytes(p).decode("utf-8", errors="replace")
+    for no, raw in enumerate(text.splitlines(), 1):
+        s = raw.strip()
+        m = _INCLUDE.match(s)
+        if m:
+            name = (m.group(1) or "").strip()
+            inc = Path(os.path.expanduser(name)) if name else None
+            if inc is not None and not inc.is_absolute():
+                inc = ini.folder / inc
+            if inc is None or not inc.is_file():
+                ini.notes.append(f"{p}:{no}: #INCLUDE {name or '(no file name)'} cannot be read: skipped, as the"
+                                 " linuxcnc launcher does")
+                continue
+            if inc.resolve() in chain:
+                raise InputError(p, no, f"#INCLUDE {name} includes itself")
+            section = _read_into(ini, inc, [*chain, inc.resolve()], section)
+            continue
+        if not s or s[0] in "#;":
+            continue
+        m = _SECTION.match(raw)
+        if m:
+            section = m.group(1).strip()
+            ini.values.setdefault(section, {})
+            ini.section_lines.setdefault(section, (p, no))
+            continue
+        m = _KEYVAL.match(raw)
+        if m and section:
+            key = m.group(2)
+            ini.values[section].setdefault(key, []).append(IniValue(section, key, m.group(4), p, no))
+    return section
