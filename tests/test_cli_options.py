@@ -53,6 +53,7 @@ def _base(command: str, tmp: Path) -> list[str]:
         "batch": ["batch", str(tmp / "parts"), "--out", str(tmp / "b"), "--profile", str(MILL), "--workers", "1",
                   "--iterations", "1"],
         "linuxcnc run": ["linuxcnc", "run", star, "--log", str(tmp / "run.csv")],
+        "report": ["report", str(tmp / "none.state"), "--out", str(tmp / "rep")],  # numbers are checked first
     }[command]
 
 
