@@ -483,10 +483,60 @@ def learn(
             outcome = _learn_with_progress(learn_part, req, console)
     except IlcncError as exc:
         _fail(exc)
+    if report is not None:
+        try:  # the visual diff and report.html, read back from the state the run just wrote
+            from ilcnc.shop.state_report import write_state_report
+
+            done = write_state_report(outcome.state_dir, report, profile_path=profile,
+                                      cutting_below_z_mm=cutting_below_z, images=list(outcome.report_files))
+        except IlcncError as exc:
+            _fail(exc)
+        outcome.report_files.extend(done.files)
     if as_json:
         typer.echo(json.dumps(outcome.to_json()))
         return
     _print_learning(outcome, console)
+
+
+@app.command()
+def report(
+    state: Annotated[Path, typer.Argument(help="A learning state directory (learn's OUT.state or --state).")],
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Report folder (default: NAME.report beside NAME.state).")
+    ] = None,
+    profile: Annotated[
+        Path | None, typer.Option("--profile", help="The run's machine profile: its units and cutting rule.")
+    ] = None,
+    cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Draw what a learning run changed and write report.html, from its state directory.
+
+    Writes corrections.png (original and rewritten path, corrections as arrows magnified by the factor in
+    the title; cutting moves solid, air moves dashed), corrections-zoom.png (the worst cutting spot with
+    program line numbers), corrections-along-path.png, and report.html: one self-contained page with the
+    figures, the iteration table, the worst commands with their source lines and the program diff.
+    """
+    from ilcnc.shop.state_report import default_report_dir, write_state_report
+
+    try:
+        _finite("--cutting-below-z", cutting_below_z, unit="mm")
+        done = write_state_report(state, out if out is not None else default_report_dir(state), profile_path=profile,
+                                  cutting_below_z_mm=cutting_below_z)
+    except IlcncError as exc:
+        _fail(exc)
+    f = done.figures
+    if as_json:
+        typer.echo(json.dumps({"files": [str(p) for p in done.files], "shown_iteration": done.shown_iteration,
+                               "magnify": f.magnify, "zoom_magnify": f.zoom_magnify, "arrows_drawn": f.arrows_drawn,
+                               "arrows_total": f.arrows_total, "worst_line": done.worst_line,
+                               "zoom_half_mm": f.zoom_half_mm, "corners": f.corners, "diff_rows": done.diff_rows,
+                               "diff_changed": done.diff_changed, "cutting_rule": done.rule}))
+        return
+    typer.echo(f"iteration {done.shown_iteration} against the original: corrections ×{f.magnify:g} in"
+               f" {done.files[0].name}, {f.arrows_drawn} of {f.arrows_total} corrected end points drawn; zoom on line"
+               f" {done.worst_line} (±{f.zoom_half_mm:.3g} mm, ×{f.zoom_magnify:g})")
+    typer.echo(f"wrote {len(done.files)} files in {done.files[0].parent}")
 
 
 def _learn_with_progress(learn_part, req, console):

@@ -55,6 +55,7 @@ def _base(command: str, tmp: Path) -> list[str]:
         "linuxcnc run": ["linuxcnc", "run", star, "--log", str(tmp / "run.csv")],
         "linuxcnc profile": ["linuxcnc", "profile", str(REPO / "configs" / "linuxcnc-sim" / "sim.ini")],
         "linuxcnc prepare": ["linuxcnc", "prepare", star, "--profile", str(REPO / "configs" / "linuxcnc-sim.yaml")],
+        "report": ["report", str(tmp / "none.state"), "--out", str(tmp / "rep")],  # numbers are checked first
     }[command]
 
 

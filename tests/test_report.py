@@ -15,9 +15,9 @@ from ilcnc.errors import InputError
 from ilcnc.shop.report import (
     CommandDiff,
     ReportRun,
-    _auto_magnify,
-    _plane_axes,
     _select,
+    auto_magnify,
+    plane_axes,
     write_report,
 )
 
@@ -229,20 +229,20 @@ def test_inconsistent_shapes_raise(tmp_path):
 
 
 def test_auto_magnify():
-    assert _auto_magnify(20.0, 0.050) == 20.0  # raw 20
-    assert _auto_magnify(20.0, 0.075) == 10.0  # raw 13.3
-    assert _auto_magnify(100.0, 0.001) == 5000.0
-    assert _auto_magnify(20.0, 5.0) == 1.0  # never shrinks
-    assert _auto_magnify(20.0, 0.0) == 1.0
-    assert _auto_magnify(0.0, 0.01) == 1.0
-    assert _auto_magnify(20.0, math.nan) == 1.0
+    assert auto_magnify(20.0, 0.050) == 20.0  # raw 20
+    assert auto_magnify(20.0, 0.075) == 10.0  # raw 13.3
+    assert auto_magnify(100.0, 0.001) == 5000.0
+    assert auto_magnify(20.0, 5.0) == 1.0  # never shrinks
+    assert auto_magnify(20.0, 0.0) == 1.0
+    assert auto_magnify(0.0, 0.01) == 1.0
+    assert auto_magnify(20.0, math.nan) == 1.0
 
 
 def test_plane_axes():
-    assert _plane_axes(np.array([20.0, 20.0, 5.0])) == (0, 1)
-    assert _plane_axes(np.array([20.0, 0.0, 0.0])) == (0, 1)
-    assert _plane_axes(np.array([20.0, 0.0, 10.0])) == (0, 2)
-    assert _plane_axes(np.array([0.0, 30.0, 10.0])) == (1, 2)
+    assert plane_axes(np.array([20.0, 20.0, 5.0])) == (0, 1)
+    assert plane_axes(np.array([20.0, 0.0, 0.0])) == (0, 1)
+    assert plane_axes(np.array([20.0, 0.0, 10.0])) == (0, 2)
+    assert plane_axes(np.array([0.0, 30.0, 10.0])) == (1, 2)
 
 
 def test_select_decimates_and_keeps_peaks():

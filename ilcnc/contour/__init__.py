@@ -10,7 +10,8 @@ from ilcnc._lazy import lazy_exports
 _EXPORTS: dict[str, tuple[str, ...]] = {
     'air': (
         'CuttingRule', 'MOVE_AIR', 'MOVE_CUT', 'MOVE_NOT_FED', 'air_above_mm', 'air_command_mask', 'air_commands',
-        'cutting_rule', 'cutting_samples', 'move_classes', 'profile_cutting_rule', 'profile_move_classes'
+        'cutting_rule', 'cutting_samples', 'move_classes', 'profile_cutting_rule', 'profile_move_classes',
+        'rule_air_commands'
     ),
     'estimates': ('CommandError', 'per_command_error', 'sample_command', 'summary', 'tangent_error'),
     'figures': ('ErrorFigures',),

@@ -40,7 +40,8 @@ from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
 
 __all__ = ["MOVE_AIR", "MOVE_CUT", "MOVE_NOT_FED", "CuttingRule", "air_above_mm", "air_command_mask", "air_commands",
-           "cutting_rule", "cutting_samples", "move_classes", "profile_cutting_rule", "profile_move_classes"]
+           "cutting_rule", "cutting_samples", "move_classes", "profile_cutting_rule", "profile_move_classes",
+           "rule_air_commands"]
 
 #: Move classes (:func:`move_classes`): a rapid (no figure), a cutting feed move, a feed move in the air.
 MOVE_NOT_FED = 0
@@ -168,10 +169,16 @@ def air_command_mask(program: Program, profile: MachineProfile) -> NDArray[np.bo
     """Commands whose end point is in the air under the profile's rule, shape (K,): air moves, and the
     retracts and approaches whose end lies above the stock top (correcting a point in the air shapes no cut)."""
     rule, classes = profile_move_classes(program, profile)
+    return rule_air_commands(program, rule, classes, resolution_mm=profile.machine.resolution_mm)
+
+
+def rule_air_commands(program: Program, rule: CuttingRule, classes: NDArray[np.int8], *, resolution_mm: float = 0.0
+                      ) -> NDArray[np.bool_]:
+    """:func:`air_command_mask` under a given rule and move classes (:func:`move_classes`), shape (K,)."""
     air = air_commands(program, classes)
     if rule.top_z_mm is not None:
         mv = program.moves
         cm = program.command_moves
         end_z = mv.end_mm[cm, 2] - mv.offset_mm[cm, 2]
-        air |= end_z > rule.top_z_mm + profile.machine.resolution_mm
+        air |= end_z > rule.top_z_mm + resolution_mm
     return air

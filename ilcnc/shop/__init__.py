@@ -16,6 +16,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     'export': ('ExportResult', 'export_program', 'output_family'),
     'fidelity': ('Fidelity', 'TARGET_CORRELATION', 'TARGET_DIFFERENCE', 'compare_signals', 'fidelity_of_log'),
+    'html_report': ('DIFF_ROWS', 'HtmlFigure', 'HtmlReport', 'INSERTED_ROWS', 'IterationRow', 'WorstRow', 'render_html'),
     'gate': (
         'BASELINE_FORMAT', 'Baseline', 'ProgramCheck', 'check_program', 'expand_programs',
         'figures_line', 'judge', 'junit_xml', 'read_baseline', 'write_baseline'
@@ -44,9 +45,14 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'log_quantum_mm', 'samples_fingerprint'
     ),
     'measure': ('Measurement', 'check_log_memory', 'interpolate_along_path', 'measure_log', 'measure_points'),
-    'report': ('CommandDiff', 'MAX_PLOT_POINTS', 'REPORT_FILES', 'ReportRun', 'is_report_file', 'write_report'),
+    'report': (
+        'CommandDiff', 'MAX_PLOT_POINTS', 'REPORT_FILES', 'ReportRun', 'auto_magnify', 'axis_extent', 'figure_png',
+        'format_factor', 'is_report_file', 'new_figure', 'plane_axes', 'write_report'
+    ),
+    'report_diff': ('ARROW_GRID', 'CORNER_DEG', 'CORRECTION_FILES', 'CorrectionFigures', 'correction_figures'),
     'selftest': ('SelftestResult', 'run_selftest'),
     'state': ('IterationEntry', 'LearnState', 'STATE_FILE', 'sha256_bytes', 'sha256_file', 'state_lock'),
+    'state_report': ('REPORT_HTML', 'StateReport', 'WORST_ROWS', 'default_report_dir', 'write_state_report'),
     'workflow': ('LearnOutcome', 'LearnRequest', 'find_stamp', 'learn_part', 'stamp_text', 'unstamp_text'),
 }
 

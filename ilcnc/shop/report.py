@@ -53,7 +53,8 @@ from ilcnc.units import AXIS_LETTERS
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["MAX_PLOT_POINTS", "REPORT_FILES", "CommandDiff", "ReportRun", "is_report_file", "write_report"]
+__all__ = ["MAX_PLOT_POINTS", "REPORT_FILES", "CommandDiff", "ReportRun", "auto_magnify", "axis_extent", "figure_png",
+           "format_factor", "is_report_file", "new_figure", "plane_axes", "write_report"]
 
 MAX_PLOT_POINTS = 200_000
 """Largest number of points of one plotted line."""
@@ -151,7 +152,8 @@ def _stat(run: ReportRun, key: str) -> float:
         return math.nan
 
 
-def _fmt_mag(m: float) -> str:
+def format_factor(m: float) -> str:
+    """A magnification as printed on a plot: ``20`` or ``2.5``."""
     return f"{m:.0f}" if m == round(m) and m < 1e15 else f"{m:g}"
 
 
@@ -268,7 +270,7 @@ def _decimate_polyline(path: np.ndarray, max_points: int) -> np.ndarray:
     return path[keep]
 
 
-def _extent(a: np.ndarray) -> np.ndarray:
+def axis_extent(a: np.ndarray) -> np.ndarray:
     """Per-column nan-aware max - min of an (M, d) array (0 for all-NaN columns)."""
     if a.size == 0:
         return np.zeros(a.shape[1] if a.ndim == 2 else 0)
@@ -279,7 +281,7 @@ def _extent(a: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(ext), ext, 0.0)
 
 
-def _plane_axes(ext: np.ndarray) -> tuple[int, int]:
+def plane_axes(ext: np.ndarray) -> tuple[int, int]:
     """XY, unless the part is flat in X or Y compared with Z: then the two axes of largest extent."""
     if ext.size < 3 or min(ext[0], ext[1]) >= 0.1 * ext[2]:
         return 0, 1
@@ -288,11 +290,11 @@ def _plane_axes(ext: np.ndarray) -> tuple[int, int]:
     return a0, a1
 
 
-def _auto_magnify(extent_mm: float, max_err_mm: float) -> float:
-    """A 1-2-5 factor that makes the largest error about 5 % of the extent (never below 1)."""
+def auto_magnify(extent_mm: float, max_err_mm: float, share: float = 0.05) -> float:
+    """A 1-2-5 factor that makes the largest error about ``share`` of the extent (5 %; never below 1)."""
     if not (math.isfinite(extent_mm) and math.isfinite(max_err_mm)) or extent_mm <= 0 or max_err_mm <= 0:
         return 1.0
-    raw = 0.05 * extent_mm / max_err_mm
+    raw = share * extent_mm / max_err_mm
     if raw <= 1.0:
         return 1.0
     exp = math.floor(math.log10(raw))
@@ -301,7 +303,8 @@ def _auto_magnify(extent_mm: float, max_err_mm: float) -> float:
     return float(nice * 10**exp)
 
 
-def _new_figure(width: float = 9.0, height: float = 5.5) -> Figure:
+def new_figure(width: float = 9.0, height: float = 5.5) -> Figure:
+    """A matplotlib figure on the Agg canvas (no GUI, no pyplot state), size in inches, constrained layout."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -310,9 +313,11 @@ def _new_figure(width: float = 9.0, height: float = 5.5) -> Figure:
     return fig
 
 
-def _png(fig: Figure) -> bytes:
+def figure_png(fig: Figure) -> bytes:
+    """The figure as PNG bytes; the first axes' title is also the PNG's ``Title`` text (file browsers show it)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=_DPI)
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    fig.savefig(buf, format="png", dpi=_DPI, metadata={"Title": titles[0]} if titles else None)
     return buf.getvalue()
 
 
@@ -346,10 +351,10 @@ def _plot_path(run: ReportRun, n: int, path_2d: np.ndarray, axes: tuple[int, int
         act = f + mag * (act - f)
     xy = _broken(act, brk)
 
-    fig = _new_figure(8.0, 7.5)
+    fig = new_figure(8.0, 7.5)
     ax = fig.add_subplot()
     ax.plot(path_2d[:, 0], path_2d[:, 1], color="0.25", lw=0.9, label="programmed path")
-    scale = f"deviation ×{_fmt_mag(mag)}" if foot is not None else "true scale (no foot points)"
+    scale = f"deviation ×{format_factor(mag)}" if foot is not None else "true scale (no foot points)"
     ax.plot(xy[:, 0], xy[:, 1], color="C3", lw=0.8, label=f"actual, {scale}")
     if run.contour_mm is not None and idx.size:
         e = np.asarray(run.contour_mm[idx], dtype=float)
@@ -363,7 +368,7 @@ def _plot_path(run: ReportRun, n: int, path_2d: np.ndarray, axes: tuple[int, int
     ax.grid(True, lw=0.4, alpha=0.5)
     fig.legend(loc="outside lower center", ncols=3, fontsize="small")
     ax.set_title(f"{program_name} – {_run_label(run)}: {scale}\n{_stats_text(run)}", fontsize="medium")
-    return _png(fig)
+    return figure_png(fig)
 
 
 def _error_line(run: ReportRun, n: int, max_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -380,7 +385,7 @@ def _error_line(run: ReportRun, n: int, max_points: int) -> tuple[np.ndarray, np
 
 def _plot_error(run: ReportRun, line: tuple[np.ndarray, np.ndarray, np.ndarray | None], program_name: str) -> bytes:
     x, y, s = line
-    fig = _new_figure()
+    fig = new_figure()
     ax = fig.add_subplot()
     if s is not None:
         ax.plot(x, s, color="C0", lw=0.6, alpha=0.6, label="signed in-plane error (+ = left of path)")
@@ -391,14 +396,14 @@ def _plot_error(run: ReportRun, line: tuple[np.ndarray, np.ndarray, np.ndarray |
     ax.grid(True, lw=0.4, alpha=0.5)
     fig.legend(loc="outside lower center", ncols=2, fontsize="small")
     ax.set_title(f"{program_name} – {_run_label(run)}\n{_stats_text(run)}", fontsize="medium")
-    return _png(fig)
+    return figure_png(fig)
 
 
 def _plot_error_all(lines: list[tuple[ReportRun, np.ndarray, np.ndarray]], program_name: str) -> bytes:
     from matplotlib import colormaps
 
     cmap = colormaps["viridis"]
-    fig = _new_figure()
+    fig = new_figure()
     ax = fig.add_subplot()
     count = len(lines)
     for i, (run, x, y) in enumerate(lines):
@@ -409,7 +414,7 @@ def _plot_error_all(lines: list[tuple[ReportRun, np.ndarray, np.ndarray]], progr
     ax.grid(True, lw=0.4, alpha=0.5)
     fig.legend(loc="outside right upper", fontsize="small", ncols=max(1, math.ceil(count / 25)))
     ax.set_title(f"{program_name} – contour error along the path, all iterations", fontsize="medium")
-    return _png(fig)
+    return figure_png(fig)
 
 
 def _minor_log_label(ax: Any, v: float) -> str:
@@ -428,7 +433,7 @@ def _plot_vs_iteration(runs: list[ReportRun], program_name: str) -> bytes:
     ordered = sorted(runs, key=lambda r: r.iteration)
     it = np.array([r.iteration for r in ordered], dtype=float)
     kept = np.array([r.kept for r in ordered], dtype=bool)
-    fig = _new_figure()
+    fig = new_figure()
     ax = fig.add_subplot()
     handles = []
     for key, name, marker, color in (("max", "max", "^", "C3"), ("rms", "RMS", "s", "C1"), ("mean", "mean", "o", "C0")):
@@ -449,7 +454,7 @@ def _plot_vs_iteration(runs: list[ReportRun], program_name: str) -> bytes:
     ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _pos: _minor_log_label(ax, v)))
     fig.legend(handles=handles, loc="outside right upper", fontsize="small")
     ax.set_title(f"{program_name} – contour error per iteration", fontsize="medium")
-    return _png(fig)
+    return figure_png(fig)
 
 
 # --------------------------------------------------------------------------- tables
@@ -564,7 +569,8 @@ def _commands(diff: CommandDiff) -> tuple[str, int, int, float]:
 
 #: The files a report folder receives (``NNN``: an iteration number); :func:`is_report_file` tells them.
 REPORT_FILES = ("summary.csv", "summary.md", "commands.csv", "error-along-path.png", "error-vs-iteration.png",
-                "refined-corner.png", "path-iterNNN.png", "error-iterNNN.png")
+                "refined-corner.png", "path-iterNNN.png", "error-iterNNN.png", "corrections.png",
+                "corrections-zoom.png", "corrections-along-path.png", "report.html")
 _REPORT_FILE = re.compile("|".join(re.escape(n).replace("NNN", r"\d{3,}") for n in REPORT_FILES))
 
 
@@ -644,8 +650,8 @@ def write_report(out_dir: Path, *, program_name: str, path_mm: np.ndarray, runs:
     def put(name: str, data: bytes | str) -> None:
         written.append(write_atomic(out_dir / name, data))
 
-    ext = _extent(path)
-    axes = _plane_axes(ext)
+    ext = axis_extent(path)
+    axes = plane_axes(ext)
     extent = float(max(ext[axes[0]], ext[axes[1]])) if ext.size else 0.0
     if magnify is None:
         errs = [_stat(r, "max") for r in runs if r.actual_mm is not None and r.foot_mm is not None]
@@ -656,7 +662,7 @@ def write_report(out_dir: Path, *, program_name: str, path_mm: np.ndarray, runs:
                     with np.errstate(invalid="ignore"):
                         errs.append(float(np.fmax.reduce(np.asarray(r.contour_mm, dtype=float))))
         finite = [e for e in errs if math.isfinite(e)]
-        magnify = _auto_magnify(extent, max(finite)) if finite else 1.0
+        magnify = auto_magnify(extent, max(finite)) if finite else 1.0
     path_2d = _decimate_polyline(path[:, list(axes)], max_points)
 
     rc = {"agg.path.chunksize": 20_000, "path.simplify": True, "path.simplify_threshold": 0.3}
@@ -710,15 +716,15 @@ def plot_refined_corner(*, program_name: str, path_mm: np.ndarray, first: Report
     e = np.where(_valid_mask(first.actual_mm.shape[0], first.feed_mask), first.contour_mm, np.nan)
     w = int(np.nanargmax(e))
     centre = first.foot_mm[w]
-    ext = _extent(path_mm)
-    a0, a1 = _plane_axes(ext)
+    ext = axis_extent(path_mm)
+    a0, a1 = plane_axes(ext)
     worst = max(float(np.nanmax(e)), 1e-6)
-    mag = _auto_magnify(2.0 * radius_mm, worst) * 4.0  # the zoom: the deviation shows at ~20 % of the window
+    mag = auto_magnify(2.0 * radius_mm, worst) * 4.0  # the zoom: the deviation shows at ~20 % of the window
 
     def near(p: np.ndarray) -> NDArray[np.bool_]:
         return np.all(np.abs(p[:, [a0, a1]] - centre[[a0, a1]]) <= 1.5 * radius_mm, axis=1)
 
-    fig = _new_figure(7.5, 7.5)
+    fig = new_figure(7.5, 7.5)
     ax = fig.add_subplot()
     pm = path_mm.copy()
     pm[~near(np.nan_to_num(pm, nan=1e9))] = np.nan
@@ -729,7 +735,7 @@ def plot_refined_corner(*, program_name: str, path_mm: np.ndarray, first: Report
         sel = near(run.foot_mm) & _valid_mask(run.actual_mm.shape[0], run.feed_mask)
         f = run.foot_mm[sel]
         a = f + mag * (run.actual_mm[sel] - f)
-        ax.plot(a[:, a0], a[:, a1], ".", ms=1.5, color=colour, label=f"{name}: actual, deviation ×{_fmt_mag(mag)}")
+        ax.plot(a[:, a0], a[:, a1], ".", ms=1.5, color=colour, label=f"{name}: actual, deviation ×{format_factor(mag)}")
     c = near(commands_mm)
     ax.plot(commands_mm[c & ~inserted, a0], commands_mm[c & ~inserted, a1], "s", ms=5, mfc="none", mec="0.1",
             label="end points of the program")
@@ -744,4 +750,4 @@ def plot_refined_corner(*, program_name: str, path_mm: np.ndarray, first: Report
     fig.legend(loc="outside lower center", ncols=2, fontsize="small")
     ax.set_title(f"{program_name}: the first run's worst spot ({1000.0 * worst:.2f} µm), zoomed\n"
                  f"first {_stats_text(first)}\niteration {best.iteration}: {_stats_text(best)}", fontsize="small")
-    return _png(fig)
+    return figure_png(fig)
