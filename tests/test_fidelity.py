@@ -41,8 +41,8 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     assert "time_constant_s: 0.027851" in text
     slow.write_text(text.replace("time_constant_s: 0.027851", "time_constant_s: 0.040"), encoding="utf-8")
     out = {"same": d / "same.csv", "slow": d / "slow.csv"}
-    _cli("simulate", JSDC, "--profile", PROFILE, "--out", out["same"])
-    _cli("simulate", JSDC, "--profile", slow, "--out", out["slow"])
+    _cli("simulate", JSDC, "--profile", PROFILE, "--log-out", out["same"])
+    _cli("simulate", JSDC, "--profile", slow, "--log-out", out["slow"])
     return out
 
 
