@@ -87,9 +87,9 @@ def test_a_log_of_another_program_is_refused_in_one_line(logs: dict[str, Path]) 
     assert "not a run of this program" in lines[0]
 
 
-@pytest.mark.parametrize("opt", ["--out", "--against"])
+@pytest.mark.parametrize("opt", ["--log-out", "--against"])
 def test_compare_does_not_mix_with_other_runs(logs: dict[str, Path], tmp_path: Path, opt: str) -> None:
-    val = tmp_path / "x.csv" if opt == "--out" else JSDC
+    val = tmp_path / "x.csv" if opt == "--log-out" else JSDC
     res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(logs["same"]),
                               opt, str(val)])
     assert res.exit_code == 2  # a usage error (issue 25 item 17)
