@@ -33,7 +33,7 @@ COMMANDS: list[tuple[str, list[str]]] = [
     ("inspect-star-h", ["inspect", "{own}/star.h"]),
     ("inspect-compass", ["inspect", "{samples}/compass.ngc", "--profile", "{profile}"]),
     ("simulate-star", ["simulate", "{own}/star.ngc", "--profile", "{profile}", "--json"]),
-    ("simulate-square-h", ["simulate", "{own}/square.h", "--profile", "{profile}", "--out", "log.csv"]),
+    ("simulate-square-h", ["simulate", "{own}/square.h", "--profile", "{profile}", "--log-out", "log.csv"]),
     ("simulate-jsdc", ["simulate", "{samples}/jsdc.gcode", "--profile", "{profile}"]),
     ("check-compass", ["check", "{samples}/compass.ngc", "--profile", "{profile}", "--max-error", "0.005"]),
     ("learn-star", ["learn", "{own}/star.ngc", "--profile", "{profile}", "--iterations", "2", "--out", "star-c.ngc",
@@ -48,7 +48,7 @@ COMMANDS: list[tuple[str, list[str]]] = [
     ("tune-lifted", ["tune", "{own}/square.ngc", "--profile", "{profile}", "--method", "lifted"]),
     ("identify", ["identify", "{data}/identify/tncscope_x_sopdt.csv", "--axis", "x", "--json"]),
     ("bad-program", ["inspect", "{data}/../../configs/example-mill.yaml"]),
-    ("bad-option", ["identify", "{data}/identify/linuxcnc_x_step.hal.log", "--axis", "x", "--period-s", "-1"]),
+    ("bad-option", ["identify", "{data}/identify/linuxcnc_x_step.hal.log", "--axis", "x", "--log-period", "-1"]),
     ("bad-profile", ["simulate", "{own}/star.ngc", "--profile", "{own}/star.ngc"]),
 ]
 

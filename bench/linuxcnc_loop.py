@@ -99,7 +99,7 @@ def main() -> int:
         for i in range(a.iterations + 1):
             log = d / f"run{i}.csv"
             t0 = time.perf_counter()
-            run = cli("linuxcnc", "run", program, "--log", log, "--time-scale", a.time_scale, "--timeout", 36000)
+            run = cli("linuxcnc", "run", program, "--log-out", log, "--time-scale", a.time_scale, "--timeout", 36000)
             t_run += time.perf_counter() - t0
             if i == 0:
                 fid = cli("simulate", part, "--profile", a.profile, "--compare", log)["fidelity"]

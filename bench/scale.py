@@ -18,7 +18,7 @@ outside the timed call):
 * ``inspect``: ``inspect_program`` of the 1M-line program without a profile
   (target < 5 s) and with ``--profile`` (planned cycle time: the whole
   reference trajectory is planned);
-* ``simulate``: ``simulate_figures`` with the profile (what ``ilcnc simulate`` without ``--out`` runs: chunk by chunk);
+* ``simulate``: ``simulate_figures`` with the profile (what ``ilcnc simulate`` without ``--log-out`` runs: chunk by chunk);
 * ``learn``: one iteration of ``learn_virtual(iterations=1,
   stop_on_stall=False)``, iteration 1 = the sum of its ``timings_s`` stages as
   in ``bench/learn.py`` (targets < 3 min and < 4 GB).
@@ -225,7 +225,7 @@ def _stage_inspect(program: Path, profile: Path | None) -> dict[str, Any]:
 
 
 def _stage_simulate(program: Path, profile: Path) -> dict[str, Any]:
-    """What ``ilcnc simulate PROG --profile P`` runs (no ``--out``: the figures only, chunk by chunk)."""
+    """What ``ilcnc simulate PROG --profile P`` runs (no ``--log-out``: the figures only, chunk by chunk)."""
     from ilcnc.profile.load import load_profile
     from ilcnc.program import read_program
     from ilcnc.vcnc.run import simulate_figures

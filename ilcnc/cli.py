@@ -16,17 +16,16 @@ from typing import Annotated, Any, NoReturn
 import typer
 
 from ilcnc import __version__
+from ilcnc.cli_options import DebugOption, IlcncApp, debug_on, set_debug
 from ilcnc.errors import IlcncError, InputError, UsageError
 from ilcnc.units import AXIS_NAMES, LENGTH_UNITS
+from ilcnc.wording import plural
 
-app = typer.Typer(
-    add_completion=False,
+app = IlcncApp(
     no_args_is_help=True,
     help="ilcnc: make CNC machines cut what was programmed (iterative learning control on G01 end points).",
     pretty_exceptions_enable=False,
 )
-
-_state = {"debug": False}
 
 
 def _version(value: bool) -> None:
@@ -40,11 +39,11 @@ def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks of errors.")] = False,
 ) -> None:
-    _state["debug"] = debug
+    set_debug(debug)
 
 
 def _fail(exc: IlcncError) -> NoReturn:
-    if _state["debug"]:
+    if debug_on():
         raise exc
     typer.echo(f"error: {exc.format()}", err=True)
     raise typer.Exit(exc.exit_code)
@@ -113,6 +112,7 @@ def inspect(
     moves: Annotated[Path | None, typer.Option("--moves", help="Write the command table k,line,x,y,z,f (mm, mm/min).")] = None,
     profile: Annotated[Path | None, typer.Option("--profile", help="Machine profile YAML (units, rapid speed).")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Dialect, units, lines, G01 commands, extents, path length and cycle time of a program."""
     from ilcnc.shop import inspect as inspect_mod
@@ -139,6 +139,7 @@ def export(
     iteration: Annotated[
         int | None, typer.Option("--iteration", min=0, help="With --state: which iteration (default: the run's output).")
     ] = None,
+    debug: DebugOption = False,
 ) -> None:
     """Write the program (optionally corrected) in the dialect of OUT's suffix.
 
@@ -161,8 +162,8 @@ def export(
         _fail(exc)
     if result.note:
         typer.echo(f"note: {result.note}", err=True)
-    typer.echo(f"wrote {result.path} ({result.mode}; {result.changed_commands} commands corrected, "
-               f"{result.edits} numbers rewritten)")
+    typer.echo(f"wrote {result.path} ({result.mode}; {plural(result.changed_commands, 'command')} corrected, "
+               f"{plural(result.edits, 'number')} rewritten)")
 
 
 @app.command()
@@ -173,6 +174,7 @@ def diff(
         Path | None, typer.Option("--profile", help="Machine profile (units of a G-code program without G20/G21).")
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object (numbers in full).")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """List what OUTPUT changed in ORIGINAL: each changed line with its end point's correction in µm (ΔX ΔY ΔZ,
     output minus original, as the interpreter reads both) and the coordinate, arc centre and feed words that
@@ -210,7 +212,9 @@ _CUTTING_BELOW_Z_HELP = ("Stock top, mm in program coordinates: feed moves entir
 def simulate(
     program: Annotated[Path, typer.Argument(help="Part program to run on the virtual CNC.")],
     profile: Annotated[Path, typer.Option("--profile", help="Machine profile YAML (limits, planner, drives).")],
-    out: Annotated[Path | None, typer.Option("--out", help="Write the axis log CSV (t_s,k,line,x_ref,...,z_act).")] = None,
+    log_out: Annotated[
+        Path | None, typer.Option("--log-out", help="Write the axis log CSV (t_s,k,line,x_ref,...,z_act); formerly --out.")
+    ] = None,
     against: Annotated[
         Path | None, typer.Option("--against", help="Measure the contour error against this program's path.")
     ] = None,
@@ -231,6 +235,7 @@ def simulate(
     log_offset: Annotated[str | None, typer.Option("--log-offset", help="With --compare: " + _LOG_OFFSET_HELP)] = None,
     cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Run PROGRAM on the virtual CNC: planned reference, drive models, contour error."""
     from ilcnc.axislog.log import write_axis_log
@@ -239,7 +244,7 @@ def simulate(
     from ilcnc.vcnc import simulate as sim_mod
 
     if compare is not None:
-        bad = [o for o, v in (("--out", out), ("--against", against), ("--schedule", schedule)) if v is not None]
+        bad = [o for o, v in (("--log-out", log_out), ("--against", against), ("--schedule", schedule)) if v is not None]
         if bad:
             _fail(UsageError("--compare", f"judges the virtual CNC on PROGRAM as it is: it does not go with {bad[0]}"))
         _compare(program, profile, compare, log_format, log_units, log_columns, _parse_offset(log_offset), as_json)
@@ -260,18 +265,18 @@ def simulate(
         if gains is not None:
             result = sim_mod.simulate_program(prog, prof, against=orig, gain_schedule=gains)
         elif as_json:
-            result = _simulate(prog, prof, orig, out is not None)
+            result = _simulate(prog, prof, orig, log_out is not None)
         else:
-            result = _simulate_with_progress(prog, prof, orig, console, out is not None)
-        if out is not None:
+            result = _simulate_with_progress(prog, prof, orig, console, log_out is not None)
+        if log_out is not None:
             protect = (program, profile) + ((against,) if against is not None else ())
-            write_axis_log(out, result.axis_log(), protect=protect)
+            write_axis_log(log_out, result.axis_log(), protect=protect)
     except IlcncError as exc:
         _fail(exc)
     if as_json:
         typer.echo(json.dumps(result.to_json(prog)))
         return
-    _print_simulation(result, prog, console, out)
+    _print_simulation(result, prog, console, log_out)
 
 
 def _check_log_options(log_format: str, log_units: str, log_columns: str | None = None) -> None:
@@ -384,7 +389,7 @@ def _simulate_with_progress(prog, prof, orig, console, samples: bool):
     return result
 
 
-def _print_simulation(result, prog, console, out: Path | None) -> None:
+def _print_simulation(result, prog, console, log_out: Path | None) -> None:
 
     t = _table(f"virtual CNC: {prog.path.name}", show_header=False)
     t.add_column("what", overflow="fold")
@@ -400,8 +405,8 @@ def _print_simulation(result, prog, console, out: Path | None) -> None:
     t.add_row("worst command", f"k={worst['k']} (line {worst['line']})")
     for name, st in result.shares.items():
         t.add_row(f"  {name} share rms / max (µm)", f"{st['rms'] * 1e3:.2f} / {st['max'] * 1e3:.2f}")
-    if out is not None:
-        t.add_row("axis log", str(out))
+    if log_out is not None:
+        t.add_row("axis log", str(log_out))
     console.print(t)
 
 
@@ -455,6 +460,7 @@ def learn(
                            " a new branch from its best iteration (refused by default; docs/learning.md).")
     ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Learn corrections of the G01 end points and write the compensated program.
 
@@ -509,6 +515,7 @@ def report(
     ] = None,
     cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Draw what a learning run changed and write report.html, from its state directory.
 
@@ -583,7 +590,9 @@ def _print_learning(outcome, console) -> None:
     if outcome.cutting_rule:
         console.print(f"air moves: {outcome.cutting_rule}")
     if outcome.air_commands:
-        console.print(f"{outcome.air_commands} G01 commands in the air or ending there (retracts, approaches) are kept as"
+        n_air = outcome.air_commands
+        console.print(f"{plural(n_air, 'G01 command')} in the air or ending there (retracts, approaches)"
+                      f" {'is' if n_air == 1 else 'are'} kept as"
                       " programmed (learning.air_moves: keep)")
     for c in outcome.clips[:20]:
         console.print(f"clipped ({c.cause}): k={c.k} line {c.line} {c.axis.upper()} {c.wanted_mm:+.4f} →"
@@ -592,14 +601,15 @@ def _print_learning(outcome, console) -> None:
         console.print(f"clipped: {len(outcome.clips) - 20} more (see --json or --report)")
     if outcome.frozen:
         why = "; ".join(f"{n} {reason}" for reason, n in outcome.frozen_reasons.items())
-        console.print(f"{outcome.frozen} commands are never corrected ({why or 'repeated, polar or machine moves'})")
+        console.print(f"{plural(outcome.frozen, 'command')} {'is' if outcome.frozen == 1 else 'are'} never corrected"
+                      f" ({why or 'repeated, parametric, polar or machine moves'})")
     for n in outcome.notes:
         console.print(n)
     console.print(f"status: {outcome.status}: {outcome.message}")
     if outcome.output is not None:
         console.print(f"wrote {outcome.output} (state in {outcome.state_dir})")
     if outcome.report_files:
-        console.print(f"report: {len(outcome.report_files)} files in {outcome.report_files[0].parent}")
+        console.print(f"report: {plural(len(outcome.report_files), 'file')} in {outcome.report_files[0].parent}")
 
 
 @app.command()
@@ -613,15 +623,19 @@ def identify(
     signal: Annotated[str | None, typer.Option("--signal", help="velocity or position (default: from the data).")] = None,
     step_size: Annotated[float | None, typer.Option("--step", help="Step size when the file has no u column.")] = None,
     step_time: Annotated[float | None, typer.Option("--step-time", help="When the step happens, s (default: found).")] = None,
-    fmt: Annotated[str, typer.Option("--format", help="auto, step, ilcnc, halsampler or tncscope.")] = "auto",
-    units: Annotated[str, typer.Option("--units", help="Unit of the log's positions: mm or inch.")] = "mm",
-    period: Annotated[float | None, typer.Option("--period-s", help="Sample period of a halsampler log, s.")] = None,
+    fmt: Annotated[str, typer.Option("--log-format", help="Format of STEP: auto, step, ilcnc, halsampler or tncscope"
+                                     " (formerly --format).")] = "auto",
+    units: Annotated[str, typer.Option("--log-units", help="Unit of the log's positions: mm or inch (formerly"
+                                       " --units).")] = "mm",
+    period: Annotated[float | None, typer.Option("--log-period", help="Sample period of a halsampler log, s (formerly"
+                                                 " --period-s).")] = None,
     write: Annotated[
         bool, typer.Option("--write", help="Store the fitted drive in the profile (keeps its comments).")
     ] = False,
     out: Annotated[Path | None, typer.Option("--out", help="With --write: write the updated profile here instead.")] = None,
     plot: Annotated[Path | None, typer.Option("--plot", help="Plot measurement vs fit into this PNG.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Fit a drive model to a measured step response; print parameters, confidence intervals and fit quality."""
     from ilcnc.axislog.detect import LOG_FORMATS
@@ -629,8 +643,8 @@ def identify(
     from ilcnc.learning.step_files import identify_file
 
     for name, value, allowed in (("--model", model, (*MODELS, *MODEL_ALIASES)), ("--signal", signal, (None, *SIGNALS)),
-                                 ("--format", fmt, ("auto", "step", *(f for f in LOG_FORMATS if f != "auto"))),
-                                 ("--units", units, LENGTH_UNITS), ("--axis", axis.lower(), AXIS_NAMES)):
+                                 ("--log-format", fmt, ("auto", "step", *(f for f in LOG_FORMATS if f != "auto"))),
+                                 ("--log-units", units, LENGTH_UNITS), ("--axis", axis.lower(), AXIS_NAMES)):
         if value not in allowed:
             typer.echo(f"error: {name} must be one of {', '.join(a for a in allowed if a)}, got {value!r}", err=True)
             raise typer.Exit(2)
@@ -640,7 +654,7 @@ def identify(
     try:
         _finite("--step", step_size)
         _finite("--step-time", step_time, lo=0.0)
-        _finite("--period-s", period, lo=0.0, open_lo=True, hi=1.0, unit="s")  # a servo period: µs to ms
+        _finite("--log-period", period, lo=0.0, open_lo=True, hi=1.0, unit="s")  # a servo period: µs to ms
         ident = identify_file(step, axis=axis.lower(), model=model, signal=signal, step=step_size, fmt=fmt, units=units,
                               profile=profile, period_s=period, step_time_s=step_time)
         if plot is not None:
@@ -660,7 +674,7 @@ def identify(
         t.add_row(str(r["name"]), f"{r['value']:.6g}", f"{r['stderr']:.3g}", f"[{r['ci_low']:.6g}, {r['ci_high']:.6g}]",
                   str(r.get("unit", "")))
     console.print(t)
-    line = (f"fit RMS {ident.fit_rms:.3g} {ident.y_unit}, R² {ident.r2:.6f}, {len(ident.t_s)} samples at "
+    line = (f"fit RMS {ident.fit_rms:.3g} {ident.y_unit}, R² {ident.r2:.6f}, {plural(len(ident.t_s), 'sample')} at "
             f"{ident.period_s * 1e3:g} ms")
     if ident.fixed:
         line += "; known: " + ", ".join(f"{k} = {v:g}" for k, v in ident.fixed.items())
@@ -696,6 +710,7 @@ def tune(
     write: Annotated[bool, typer.Option("--write", help="Store converging gains in the profile (keeps comments).")] = False,
     out: Annotated[Path | None, typer.Option("--out", help="With --write: write the profile here instead.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Design learning gains and say whether learning converges (per axis: epsilon, peak frequency)."""
     from ilcnc.learning.tune import tune_profile
@@ -778,6 +793,7 @@ def check(
     ] = None,
     junit: Annotated[Path | None, typer.Option("--junit", help="Write a JUnit XML report here.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     if max_error is None and baseline is None:
         from typer._click.exceptions import MissingParameter
@@ -862,7 +878,7 @@ def _check_gate(programs: list[Path], profile: Path, max_error: float | None, ma
         if baseline is not None and (not update_baseline or baseline.exists()):
             old = gate_mod.read_baseline(baseline)
     except IlcncError as exc:
-        if _state["debug"]:
+        if debug_on():
             raise
         typer.echo(f"error: {exc.format()}", err=True)
         raise typer.Exit(exc.exit_code if isinstance(exc, UsageError) else CHECK_UNREADABLE_EXIT) from None
@@ -910,7 +926,7 @@ def _check_gate(programs: list[Path], profile: Path, max_error: float | None, ma
                 typer.echo("\n".join(textwrap.wrap(ln, 80, initial_indent="" if i == 0 else "      ",
                                                    subsequent_indent="      ", break_on_hyphens=False)))
         n = len(results)
-        summary = (f"check: {n} program{'' if n == 1 else 's'}: {n - n_fail - n_bad} passed, {n_fail} failed,"
+        summary = (f"check: {plural(n, 'program')}: {n - n_fail - n_bad} passed, {n_fail} failed,"
                    f" {n_bad} unreadable (tolerance {tol_mm * 1e3:g} µm, {tol_s:g} s)")
         if update_baseline:
             summary += f"; wrote baseline {baseline}"
@@ -938,6 +954,7 @@ def batch(
                            " by default).")
     ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Learn every part of a folder or manifest; exit 1 if any part failed or regressed."""
     from ilcnc.shop import batch as batch_mod
@@ -988,7 +1005,7 @@ def batch(
 def _print_batch(results, console, out: Path) -> None:
     profiles = sorted({Path(r.profile).name for r in results})
     one = len(profiles) == 1
-    title = f"batch: {len(results)} parts on {profiles[0]}" if one else f"batch: {len(results)} parts"
+    title = f"batch: {plural(len(results), 'part')}" + (f" on {profiles[0]}" if one else "")
     t = _table(title + " (cutting moves' contour error, µm)")
     cols = ("part",) + (() if one else ("profile",)) + ("G01", "it.", "max", "RMS", "clipped", "status")
     for col in cols:
@@ -1010,6 +1027,7 @@ def _print_batch(results, console, out: Path) -> None:
 @app.command()
 def selftest(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Compile and cache the kernels of the usual commands, once after install (20-40 s; then ~1 s).
 
@@ -1037,13 +1055,13 @@ def selftest(
         for name, secs, figure in res.steps:
             typer.echo(f"{name:28s} {secs:6.2f} s   {figure}")
         cached = ("kernels were cached already" if not res.compiled else
-                  f"compiled {res.compiled} kernels in {res.compile_s:.1f} s (cached for the next runs)")
+                  f"compiled {plural(res.compiled, 'kernel')} in {res.compile_s:.1f} s (cached for the next runs)")
         typer.echo(f"selftest {'ok' if res.ok else 'FAILED'} in {wall:.1f} s: {cached}")
     if not res.ok:
         raise typer.Exit(1)
 
 
-linuxcnc_app = typer.Typer(help="Run programs on LinuxCNC's own motion controller (headless) and log them.",
+linuxcnc_app = IlcncApp(help="Run programs on LinuxCNC's own motion controller (headless) and log them.",
                            no_args_is_help=True)
 app.add_typer(linuxcnc_app, name="linuxcnc")
 
@@ -1051,7 +1069,8 @@ app.add_typer(linuxcnc_app, name="linuxcnc")
 @linuxcnc_app.command("run")
 def linuxcnc_run(
     program: Annotated[Path, typer.Argument(help="G-code program (RS-274NGC) to run.")],
-    log: Annotated[Path, typer.Option("--log", help="Axis log to write (ilcnc CSV: t_s,k,line,x_ref,...,z_act).")],
+    log_out: Annotated[Path, typer.Option("--log-out", help="Axis log to write (ilcnc CSV: t_s,k,line,x_ref,...,z_act);"
+                                              " formerly --log.")],
     config: Annotated[
         Path | None, typer.Option("--config", help="LinuxCNC configuration folder or INI (default: configs/linuxcnc-sim).")
     ] = None,
@@ -1067,10 +1086,11 @@ def linuxcnc_run(
              " not started by ilcnc is running (0: do not wait). Says on stderr whom it waits for.",
     )] = 600.0,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Run PROGRAM on LinuxCNC headlessly and write its axis log (commanded and actual, per servo cycle).
 
-    The log feeds `ilcnc learn PROGRAM --log LOG`. Runs are serialised by a
+    The log (--log-out LOG) feeds `ilcnc learn PROGRAM --log LOG`. Runs are serialised by a
     machine-wide lock (LinuxCNC is one instance per machine): a run that has
     to wait prints on stderr who holds it (pid, user, program, since when) and
     waits up to --lock-timeout, then fails naming the holder. A LinuxCNC not
@@ -1093,16 +1113,16 @@ def linuxcnc_run(
                                    on_wait=lambda line: typer.echo(line, err=True))
             alog = res.log
             alog.k = commands_from_lines(alog.line, prog)
-            write_axis_log(log, alog, protect=(program,))
+            write_axis_log(log_out, alog, protect=(program,))
     except IlcncError as exc:
         _fail(exc)
-    info = {"program": str(program), "log": str(log), "samples": alog.n_samples, "program_s": res.program_s,
+    info = {"program": str(program), "log": str(log_out), "samples": alog.n_samples, "program_s": res.program_s,
             "time_scale": res.time_scale, "wall_s": res.wall_s, "messages": res.messages}
     if as_json:
         typer.echo(json.dumps(info))
         return
     typer.echo(f"ran {program.name} on LinuxCNC: {res.program_s:.2f} s of motion at time scale {res.time_scale} "
-               f"in {res.wall_s:.1f} s; wrote {log} ({alog.n_samples} samples)")
+               f"in {res.wall_s:.1f} s; wrote {log_out} ({plural(alog.n_samples, 'sample')})")
     for m in res.messages:
         typer.echo(f"LinuxCNC: {m}")
 
@@ -1113,6 +1133,7 @@ def linuxcnc_profile(
     out: Annotated[Path | None, typer.Option("--out", help="Profile YAML to write (default: print it).")] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing --out file.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object (with the profile text).")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Write a machine profile from a LinuxCNC INI: units, limits, servo period, path control, drives.
 
@@ -1156,6 +1177,7 @@ def linuxcnc_prepare(
     write_hal: Annotated[Path | None, typer.Option("--write-hal", help="Write the HAL lines to this file.")] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing --write-hal file.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    debug: DebugOption = False,
 ) -> None:
     """Say what a log run of PROGRAM on a LinuxCNC machine needs, before the run.
 
@@ -1195,9 +1217,9 @@ def linuxcnc_prepare(
 
 
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point (also of ``python -m ilcnc``: named ilcnc in usage lines and completion scripts)."""
     try:
-        app()
+        app(prog_name="ilcnc")
     except KeyboardInterrupt:
         sys.stderr.write("interrupted\n")
         sys.exit(130)

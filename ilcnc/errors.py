@@ -29,7 +29,7 @@ class UsageError(IlcncError):
     Parameters
     ----------
     option : str
-        The option, as typed (``--period-s``).
+        The option, as typed (``--log-period``).
     problem : str
         What is wrong with it, completing the sentence (``must be a number of seconds > 0, got -1``).
     """

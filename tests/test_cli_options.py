@@ -52,7 +52,7 @@ def _base(command: str, tmp: Path) -> list[str]:
         "check": ["check", star, "--profile", str(MILL), "--max-error", "1"],  # passes: the option under test decides
         "batch": ["batch", str(tmp / "parts"), "--out", str(tmp / "b"), "--profile", str(MILL), "--workers", "1",
                   "--iterations", "1"],
-        "linuxcnc run": ["linuxcnc", "run", star, "--log", str(tmp / "run.csv")],
+        "linuxcnc run": ["linuxcnc", "run", star, "--log-out", str(tmp / "run.csv")],
         "linuxcnc profile": ["linuxcnc", "profile", str(REPO / "configs" / "linuxcnc-sim" / "sim.ini")],
         "linuxcnc prepare": ["linuxcnc", "prepare", star, "--profile", str(REPO / "configs" / "linuxcnc-sim.yaml")],
         "report": ["report", str(tmp / "none.state"), "--out", str(tmp / "rep")],  # numbers are checked first
@@ -99,7 +99,7 @@ def _cases() -> Iterator[tuple[str, str, str]]:
                     values = ("-1", "nan", "-inf", "abc")
             elif kind == "text":
                 values = ("no-such-choice",)
-            elif kind == "path" and opt not in ("--out", "--log", "--report", "--moves", "--plot", "--raw"):
+            elif kind == "path" and opt not in ("--out", "--log", "--log-out", "--report", "--moves", "--plot", "--raw"):
                 values = ("/nonexistent/ilcnc-test-input",)
             for v in values:
                 yield name, opt, v
@@ -110,7 +110,7 @@ CASES = list(_cases())
 
 def test_the_cases_cover_every_numeric_option_of_every_command() -> None:
     names = {(c, o) for c, o, _v in CASES}
-    for needed in [("learn", "--iterations"), ("identify", "--period-s"), ("tune", "--f-max"), ("check", "--max-error"),
+    for needed in [("learn", "--iterations"), ("identify", "--log-period"), ("tune", "--f-max"), ("check", "--max-error"),
                    ("simulate", "--cutting-below-z"), ("export", "--decimals"), ("batch", "--workers")]:
         assert needed in names
     assert len(CASES) > 150

@@ -41,8 +41,8 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     assert "time_constant_s: 0.027851" in text
     slow.write_text(text.replace("time_constant_s: 0.027851", "time_constant_s: 0.040"), encoding="utf-8")
     out = {"same": d / "same.csv", "slow": d / "slow.csv"}
-    _cli("simulate", JSDC, "--profile", PROFILE, "--out", out["same"])
-    _cli("simulate", JSDC, "--profile", slow, "--out", out["slow"])
+    _cli("simulate", JSDC, "--profile", PROFILE, "--log-out", out["same"])
+    _cli("simulate", JSDC, "--profile", slow, "--log-out", out["slow"])
     return out
 
 
@@ -87,9 +87,9 @@ def test_a_log_of_another_program_is_refused_in_one_line(logs: dict[str, Path]) 
     assert "not a run of this program" in lines[0]
 
 
-@pytest.mark.parametrize("opt", ["--out", "--against"])
+@pytest.mark.parametrize("opt", ["--log-out", "--against"])
 def test_compare_does_not_mix_with_other_runs(logs: dict[str, Path], tmp_path: Path, opt: str) -> None:
-    val = tmp_path / "x.csv" if opt == "--out" else JSDC
+    val = tmp_path / "x.csv" if opt == "--log-out" else JSDC
     res = runner.invoke(app, ["simulate", str(JSDC), "--profile", str(PROFILE), "--compare", str(logs["same"]),
                               opt, str(val)])
     assert res.exit_code == 2  # a usage error (issue 25 item 17)

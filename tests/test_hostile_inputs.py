@@ -75,7 +75,7 @@ def test_a_bad_manifest_is_one_line_not_a_type_error(tmp_path: Path, head: str, 
 
 def test_a_blank_line_after_the_last_sample_of_a_log_is_no_error(tmp_path: Path) -> None:
     log = tmp_path / "run0.csv"
-    assert runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--out", str(log)]).exit_code == 0
+    assert runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--log-out", str(log)]).exit_code == 0
     blank = tmp_path / "run0-blank.csv"
     blank.write_bytes(log.read_bytes() + b"\n\n")
     outs = []
@@ -91,7 +91,7 @@ def test_a_blank_line_after_the_last_sample_of_a_log_is_no_error(tmp_path: Path)
     (["learn", STAR, "--profile", MILL, "--out", "o.ngc", "--log", "run0.csv", "--points", "run0.csv", "--state", "s"],
      "error: --log and --points do not go together"),
     (["learn", STAR, "--profile", MILL, "--out", "o.ngc", "--log", "run0.csv"], "error: --log/--points make one"),
-    (["simulate", STAR, "--profile", MILL, "--compare", "run0.csv", "--out", "x.csv"], "error: --compare judges"),
+    (["simulate", STAR, "--profile", MILL, "--compare", "run0.csv", "--log-out", "x.csv"], "error: --compare judges"),
     (["learn", STAR, "--profile", MILL, "--out", "o.ngc", "--log", "run0.csv", "--state", "s", "--log-columns",
       "n line foo"], "error: --log-columns names the columns of a halsampler log: unknown halsampler column name(s) foo"),
     (["learn", STAR, "--profile", MILL, "--out", "o.ngc", "--log", "run0.csv", "--state", "s", "--log-period", "inf"],
@@ -99,7 +99,7 @@ def test_a_blank_line_after_the_last_sample_of_a_log_is_no_error(tmp_path: Path)
 ])
 def test_usage_errors_exit_2_naming_the_option(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, args: list, says: str) -> None:
     monkeypatch.chdir(tmp_path)
-    assert runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--out", "run0.csv"]).exit_code == 0
+    assert runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--log-out", "run0.csv"]).exit_code == 0
     line = _one_error(runner.invoke(app, [str(a) for a in args]), 2)
     assert line.startswith(says), line
     assert not (tmp_path / "o.ngc").exists() and not (tmp_path / "s").exists() and not (tmp_path / "x.csv").exists()
@@ -110,7 +110,7 @@ def test_outputs_are_checked_against_the_inputs_before_any_work(tmp_path: Path, 
     ran and wrote P.state/ before refusing), --out inside the state (damaged it for good)."""
     monkeypatch.chdir(tmp_path)
     shutil.copy(STAR, "star.ngc")
-    assert runner.invoke(app, ["simulate", "star.ngc", "--profile", str(MILL), "--out", "summary.csv"]).exit_code == 0
+    assert runner.invoke(app, ["simulate", "star.ngc", "--profile", str(MILL), "--log-out", "summary.csv"]).exit_code == 0
     log = (tmp_path / "summary.csv").read_bytes()
     line = _one_error(runner.invoke(app, ["learn", "star.ngc", "--profile", str(MILL), "--out", "o.ngc", "--log",
                                           "summary.csv", "--state", "S1", "--report", "."]), 1)

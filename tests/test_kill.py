@@ -160,7 +160,7 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> dict:
     root = tmp_path_factory.mktemp("kill")
     base = root / "base"
     _part(base)
-    res = _invoke(base, ["simulate", "part.ngc", "--profile", str(MILL), "--out", "run0.csv"])
+    res = _invoke(base, ["simulate", "part.ngc", "--profile", str(MILL), "--log-out", "run0.csv"])
     assert res.exit_code == 0, res.output  # type: ignore[attr-defined]
     work: dict = {"root": root, "log": (base / "run0.csv").read_bytes()}
     # how many renames a whole run makes (forked, as the kills)

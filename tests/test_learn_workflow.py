@@ -40,7 +40,7 @@ def _json(*args: str) -> dict:
 
 
 def _simulate_log(prog: Path, out: Path, against: Path | None = None) -> Path:
-    args = ["simulate", prog, "--profile", SEED004, "--out", out, "--json"]
+    args = ["simulate", prog, "--profile", SEED004, "--log-out", out, "--json"]
     if against is not None:
         args += ["--against", against]
     code, msg = _run(*args)

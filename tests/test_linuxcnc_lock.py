@@ -155,7 +155,7 @@ def _invoke(*args: object):  # type: ignore[no-untyped-def]
 
 def test_cli_lock_timeout_0_fails_at_once_naming_the_holder(holder: subprocess.Popen[str], tmp_path: Path) -> None:
     t = time.monotonic()
-    r = _invoke("linuxcnc", "run", SQUARE, "--log", tmp_path / "x.csv", "--lock-timeout", 0)
+    r = _invoke("linuxcnc", "run", SQUARE, "--log-out", tmp_path / "x.csv", "--lock-timeout", 0)
     assert r.exit_code == 1, r.output
     assert time.monotonic() - t < 5
     lines = r.stderr.splitlines()
@@ -165,7 +165,7 @@ def test_cli_lock_timeout_0_fails_at_once_naming_the_holder(holder: subprocess.P
 
 
 def test_cli_prints_whom_it_waits_for_and_for_how_long(holder: subprocess.Popen[str], tmp_path: Path) -> None:
-    r = _invoke("linuxcnc", "run", SQUARE, "--log", tmp_path / "x.csv", "--lock-timeout", 0.5)
+    r = _invoke("linuxcnc", "run", SQUARE, "--log-out", tmp_path / "x.csv", "--lock-timeout", 0.5)
     assert r.exit_code == 1, r.output
     lines = r.stderr.splitlines()
     assert len(lines) == 2, r.stderr
@@ -175,7 +175,7 @@ def test_cli_prints_whom_it_waits_for_and_for_how_long(holder: subprocess.Popen[
 
 @pytest.mark.parametrize("value", ["-1", "nan", "abc"])
 def test_cli_lock_timeout_range_is_a_usage_error(value: str, tmp_path: Path) -> None:
-    r = _invoke("linuxcnc", "run", SQUARE, "--log", tmp_path / "x.csv", "--lock-timeout", value)
+    r = _invoke("linuxcnc", "run", SQUARE, "--log-out", tmp_path / "x.csv", "--lock-timeout", value)
     assert r.exit_code == 2 and "--lock-timeout" in r.output, r.output  # like --timeout, --settle
 
 
@@ -196,7 +196,7 @@ def test_a_linuxcnc_not_started_by_ilcnc_is_named_not_collided_with(private_lock
         assert proc.pid in lcnc._linuxcnc_pids()[1]
         other = lcnc.other_linuxcnc()
         assert other is not None and other.kind == "linuxcnc" and other.since is not None
-        r = _invoke("linuxcnc", "run", SQUARE, "--log", tmp_path / "x.csv", "--lock-timeout", 0)
+        r = _invoke("linuxcnc", "run", SQUARE, "--log-out", tmp_path / "x.csv", "--lock-timeout", 0)
         assert r.exit_code == 1, r.output
         lines = r.stderr.splitlines()
         assert len(lines) == 1 and "another LinuxCNC is running, not started by ilcnc: pid " in lines[0], r.stderr

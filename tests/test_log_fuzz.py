@@ -131,7 +131,7 @@ def case(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
         part = REPO / name
     profile_path = REPO / "configs" / f"{prof}.yaml"
     log = d / "run0.csv"
-    res = runner.invoke(app, ["simulate", str(part), "--profile", str(profile_path), "--out", str(log)])
+    res = runner.invoke(app, ["simulate", str(part), "--profile", str(profile_path), "--log-out", str(log)])
     assert res.exit_code == 0, res.output
     profile = load_profile(profile_path)
     program = read_program(part)

@@ -35,7 +35,7 @@ runner = CliRunner()
 def run0(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("star-log")
     log = d / "run0.csv"
-    res = runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--out", str(log)])
+    res = runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--log-out", str(log)])
     assert res.exit_code == 0, res.output
     return log
 
@@ -148,7 +148,7 @@ def test_a_log_of_the_program_that_ran_before_is_refused(tmp_path: Path) -> None
     part = tmp_path / "compass-head.ngc"
     part.write_text("\n".join(COMPASS.read_text().splitlines()[:60]) + "\nG0 Z5\nM2\n")
     run0, state = tmp_path / "run0.csv", tmp_path / "st"
-    assert runner.invoke(app, ["simulate", str(part), "--profile", str(LCNC), "--out", str(run0)]).exit_code == 0
+    assert runner.invoke(app, ["simulate", str(part), "--profile", str(LCNC), "--log-out", str(run0)]).exit_code == 0
     learn = ["learn", str(part), "--profile", str(LCNC), "--state", str(state), "--log"]
     assert runner.invoke(app, [*learn, str(run0), "--out", str(tmp_path / "o1.ngc")]).exit_code == 0
     assert (tmp_path / "o1.ngc").read_bytes() != part.read_bytes()
@@ -162,7 +162,7 @@ def test_a_log_of_the_program_that_ran_before_is_refused(tmp_path: Path) -> None
     assert not (tmp_path / "o2.ngc").exists()
     # and the log of the program that ran last is accepted
     run1 = tmp_path / "run1.csv"
-    assert runner.invoke(app, ["simulate", str(tmp_path / "o1.ngc"), "--profile", str(LCNC), "--out",
+    assert runner.invoke(app, ["simulate", str(tmp_path / "o1.ngc"), "--profile", str(LCNC), "--log-out",
                                str(run1)]).exit_code == 0
     res = runner.invoke(app, [*learn, str(run1), "--out", str(tmp_path / "o2.ngc"), "--json"])
     assert res.exit_code == 0, res.output
@@ -181,7 +181,7 @@ def test_a_tncscope_log_names_klartext_blocks_by_their_numbers(tmp_path: Path) -
     # refuses that). The export of the same run measures what the ilcnc log measures.
     square = REPO / "samples" / "own" / "square.h"
     run0 = tmp_path / "run0.csv"
-    assert runner.invoke(app, ["simulate", str(square), "--profile", str(MILL), "--out", str(run0)]).exit_code == 0
+    assert runner.invoke(app, ["simulate", str(square), "--profile", str(MILL), "--log-out", str(run0)]).exit_code == 0
     g = read_axis_log(run0)
     block = np.where(g.line > 0, g.line - 1, 0)
     rows = ["TNCscope 3.4.1 export", "Sampling time: 1 ms",

@@ -53,7 +53,7 @@ def _one_measured_step(tmp_path: Path, steps: int) -> tuple[float, float, list[s
     machine = _profile(tmp_path, "machine")
     model = _profile(d, "model", model_steps=steps)
     log0 = d / "run0.csv"
-    run0 = _cli("simulate", JSDC, "--profile", machine, "--out", log0)
+    run0 = _cli("simulate", JSDC, "--profile", machine, "--log-out", log0)
     step = _cli("learn", JSDC, "--profile", model, "--log", log0, "--state", d / "state", "--out", d / "jsdc.ilc1.gcode")
     run1 = _cli("simulate", d / "jsdc.ilc1.gcode", "--profile", machine, "--against", JSDC)
     return run0["contour_error_mm"]["rms"], run1["contour_error_mm"]["rms"], step["notes"]

@@ -3,8 +3,8 @@
 - ``learn --log`` with ``learning.model_steps > 0`` on a ``pid_ace`` profile died with ``KeyError: 'kind'`` (a
   reason the workflow's message table lacked). Model steps that cannot apply are now refused when the
   profile loads, naming the key; every model-step end has its message.
-- ``ilcnc identify STEP --period-s -1`` printed a raw ``ValueError`` traceback. It is a usage error now:
-  exit 2, one line naming the option.
+- ``ilcnc identify STEP --period-s -1`` (now ``--log-period``) printed a raw ``ValueError`` traceback. It is a usage
+  error now: exit 2, one line naming the option.
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def test_learn_log_with_model_steps_on_a_pid_ace_profile_is_one_line_not_a_key_e
     prof = tmp_path / "pid.yaml"
     prof.write_text(yaml.safe_dump(d), encoding="utf-8")
     log = tmp_path / "run0.csv"
-    res = runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--out", str(log)])
+    res = runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--log-out", str(log)])
     assert res.exit_code == 0, res.output
     res = runner.invoke(app, ["learn", str(STAR), "--profile", str(prof), "--log", str(log), "--state",
                               str(tmp_path / "st"), "--out", str(tmp_path / "star.1.ngc")])
@@ -92,11 +92,11 @@ def test_learn_log_with_model_steps_on_a_pid_ace_profile_is_one_line_not_a_key_e
 
 @pytest.mark.parametrize("value", ["-1", "0", "nan", "inf", "2"])
 def test_identify_period_out_of_range_is_a_usage_error(value: str) -> None:
-    res = runner.invoke(app, ["identify", str(STEP_LOG), "--axis", "x", "--period-s", value])
+    res = runner.invoke(app, ["identify", str(STEP_LOG), "--axis", "x", "--log-period", value])
     assert res.exit_code == 2, res.output
     assert res.exception is None or isinstance(res.exception, SystemExit)
     assert res.output.strip().splitlines() == [
-        f"error: --period-s must be a finite number > 0 and <= 1 s, got {float(value):g}"]
+        f"error: --log-period must be a finite number > 0 and <= 1 s, got {float(value):g}"]
 
 
 def test_every_error_a_user_causes_has_one_root_a_line_and_an_exit_code() -> None:

@@ -166,7 +166,7 @@ def test_the_measured_workflow_refines_from_the_log_of_the_original(tmp_path: Pa
     state = tmp_path / "state"
 
     def run_on_machine(prog: Path, log: Path) -> None:  # the virtual CNC stands in for the machine
-        code, msg = _run("simulate", prog, "--profile", MILL, "--out", log, "--json")
+        code, msg = _run("simulate", prog, "--profile", MILL, "--log-out", log, "--json")
         assert code == 0, msg
 
     run_on_machine(src, tmp_path / "run0.csv")

@@ -85,7 +85,7 @@ def test_a_corrections_file_changed_by_hand_is_refused(tmp_path: Path) -> None:
     """Issue 25 item 9: a row of iter-001.corrections.csv changed to 0.4 mm by hand was used silently (and kept
     at 669 µm max). Every CSV the state relies on is hash-checked now, like its programs."""
     log = tmp_path / "run0.csv"
-    assert runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--out", str(log)]).exit_code == 0
+    assert runner.invoke(app, ["simulate", str(STAR), "--profile", str(MILL), "--log-out", str(log)]).exit_code == 0
     s = tmp_path / "S"
     res = runner.invoke(app, ["learn", str(STAR), "--profile", str(MILL), "--log", str(log), "--state", str(s),
                               "--out", str(tmp_path / "star.1.ngc")])

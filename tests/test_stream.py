@@ -158,7 +158,7 @@ def test_simulate_cli_without_samples_to_write_gives_the_figures_of_the_full_run
     runner = CliRunner()
     args = ["simulate", str(JSDC), "--profile", str(CONFIGS / "seed004-ward-sopdt.yaml"), "--json"]
     figures = runner.invoke(app, args)
-    full = runner.invoke(app, [*args, "--out", str(tmp_path / "log.csv")])
+    full = runner.invoke(app, [*args, "--log-out", str(tmp_path / "log.csv")])
     assert figures.exit_code == 0 and full.exit_code == 0, figures.output + full.output
     assert json.loads(figures.stdout) == json.loads(full.stdout)
     check = runner.invoke(app, ["check", str(JSDC), "--profile", str(CONFIGS / "seed004-ward-sopdt.yaml"),

@@ -38,6 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ilcnc.wording import plural
+
 __all__ = ["FeedLaw", "feed_cost_s", "move_errors_mm", "move_times_s"]
 
 #: First guess of the time the braking and speeding up around slowed moves adds, as a factor on the time model.
@@ -193,7 +195,9 @@ class FeedOutcome:
     def notes(self, limit: int = 5) -> list[str]:
         a, b = self.cycle_time_s
         change = (b / a - 1.0) if a > 0 else 0.0
-        out = [f"feed: {len(self.slowed)} moves run slower than programmed (budget +{self.budget_pct:g} % cycle"
+        n = len(self.slowed)
+        out = [f"feed: {plural(n, 'move')} {'runs' if n == 1 else 'run'} slower than programmed (budget"
+               f" +{self.budget_pct:g} % cycle"
                f" time; cycle time {a:.2f} -> {b:.2f} s, {change:+.2%})"]
         worst = sorted(self.slowed, key=lambda d: -float(d["error_mm"]))[:limit]  # type: ignore[arg-type]
         for d in worst:

@@ -68,6 +68,7 @@ from ilcnc.program.model import (
     center_arc_tolerance_mm,
 )
 from ilcnc.vcnc.command_error import CommandSignal, error_kind, measurement_gate_mm, signal_of_simulation
+from ilcnc.wording import plural
 
 __all__ = [
     "CLIP_ARC", "CLIP_BOUND", "CLIP_MOVE_LENGTH", "Clip", "IterationRecord", "LearnResult", "Learner", "UpdateShaper",
@@ -915,7 +916,7 @@ def learn_virtual(
     stall_msg: str | None = None
     best = 0
     guard_ = LearningGuard(resolution_mm=profile.machine.resolution_mm)
-    status, message = LearnStatus.MAX_ITERATIONS, f"ran {n_iter} iterations"
+    status, message = LearnStatus.MAX_ITERATIONS, f"ran {plural(n_iter, 'iteration')}"
     if stats0.max_mm <= profile.learning.stop_tolerance_mm:
         return LearnResult(program=program, iterations=records, status=LearnStatus.CONVERGED,
                            message=f"max contour error {stats0.max_mm * 1e3:.2f} µm is already within the stop tolerance",
@@ -987,7 +988,7 @@ def learn_virtual(
             if feed_step:  # the feed learning ends; the geometry's outcome stands
                 feed_step, feed_done = False, True
                 status = LearnStatus.STOPPED
-                message = f"the feed step of iteration {rec.iteration} did not lower the error ({what}): stopped"
+                message = f"the feed step of iteration {rec.iteration} did not lower the error ({what})"
                 break
             match guard_.refuse():
                 case GuardVerdict.HALVED:
@@ -997,7 +998,7 @@ def learn_virtual(
                         feed_step, stall_msg = True, None
                         continue
                     status = LearnStatus.DIVERGED
-                    message = guard_.stopped_message(rec.iteration, what) + ": stopped"
+                    message = guard_.stopped_message(rec.iteration, what)
                     break
         prev_rms = records[best].stats.rms_mm
         best = len(records) - 1
@@ -1021,7 +1022,7 @@ def learn_virtual(
                 feed_step = True
                 continue
             status = LearnStatus.STOPPED
-            message = stall_msg + ": stopped"
+            message = stall_msg
             break
     # the output: the kept iteration with the lowest RMS error (a kept iteration may be a hair
     # worse than the one before, within the resolution); unguarded runs keep every iteration
@@ -1031,7 +1032,7 @@ def learn_virtual(
     else:
         best = min(kept_idx, key=lambda i: (records[i].stats.rms_mm, -i))
     if status == LearnStatus.MAX_ITERATIONS:
-        message = f"ran {n_iter} iterations"
+        message = f"ran {plural(n_iter, 'iteration')}"
     if status in (LearnStatus.MAX_ITERATIONS, LearnStatus.DIVERGED):
         message += f"; the output is iteration {records[best].iteration}"
     feed_out = None
@@ -1143,18 +1144,19 @@ class Refinement:
     def notes(self) -> list[str]:
         """One line each for the user: what was inserted where, what was left alone and why, the cost."""
         js = self.plan.summary()
-        out = [f"refined: {self.inserted.n_inserted} lines inserted on {js['moves_split']} moves at {js['corners']}"
-               f" corners, {js['arcs']} arc junctions and {js['rapids']} feed starts after a rapid"
+        out = [f"refined: {plural(self.inserted.n_inserted, 'line')} inserted on {plural(js['moves_split'], 'move')} at"
+               f" {plural(js['corners'], 'corner')}, {plural(js['arcs'], 'arc junction')} and"
+               f" {plural(js['rapids'], 'feed start')} after a rapid"
                f" (first-run error >= {js['threshold_mm'] * 1e3:.1f}"
                f" µm); planned cycle time {self.cycle_time_s[0]:.2f} -> {self.cycle_time_s[1]:.2f} s"
                f" ({self.cycle_change:+.2%})"]
         for reason, n in sorted(js["passed"].items()):
-            out.append(f"refine: {n} spots left alone ({reason})")
+            out.append(f"refine: {plural(n, 'spot')} left alone ({reason})")
         reasons: dict[str, int] = {}
         for s in self.inserted.skipped:
             reasons[s.reason] = reasons.get(s.reason, 0) + 1
         for reason, n in sorted(reasons.items(), key=lambda x: -x[1])[:5]:
-            out.append(f"refine: {n} moves not split: {reason}")
+            out.append(f"refine: {plural(n, 'move')} not split: {reason}")
         if self.inserted.renumbered:
             out.append("refine: block numbers renumbered after the first inserted line (Klartext needs them consecutive)")
         return out

@@ -38,6 +38,7 @@ from ilcnc.program.insert import MARKER
 from ilcnc.program.model import Program
 from ilcnc.shop.workflow import find_stamp, unstamp_text
 from ilcnc.units import AXIS_LETTERS, AXIS_NAMES
+from ilcnc.wording import plural
 
 __all__ = ["WORD_KINDS", "ChangedLine", "DiffInserted", "ProgramDiff", "WordChange", "diff_files", "diff_programs",
            "format_diff"]
@@ -542,10 +543,6 @@ def diff_files(original: str | Path, output: str | Path, *, default_units: str =
     return diff_programs(a, b)
 
 
-def _n(n: int, noun: str) -> str:
-    return f"{n} {noun}{'' if n == 1 else 's'}"
-
-
 def _um(v: float) -> str:
     return f"{v * 1e3:+8.2f}"
 
@@ -590,8 +587,8 @@ def format_diff(diff: ProgramDiff, width: int = 80) -> list[str]:
     big = diff.largest()
     axes = diff.axis_lines()
     words = diff.word_counts()
-    summary = (f"summary: {len(diff.changed)} of {_n(diff.lines_original, 'line')} changed"
-               f" ({_n(len(diff.corrected), 'end point')} moved), {len(diff.inserted)} inserted,"
+    summary = (f"summary: {len(diff.changed)} of {plural(diff.lines_original, 'line')} changed"
+               f" ({plural(len(diff.corrected), 'end point')} moved), {len(diff.inserted)} inserted,"
                f" {len(diff.removed)} removed")
     if diff.renumbered:
         summary += f", {diff.renumbered} renumbered"
@@ -605,7 +602,7 @@ def format_diff(diff: ProgramDiff, width: int = 80) -> list[str]:
     out += textwrap.wrap(summary, width, subsequent_indent="  ")
     breaches = diff.breaches
     if breaches:
-        out.append(_fit(f"CONTRACT BREACH: {_n(len(breaches), 'change')} besides coordinates, centres,"
+        out.append(_fit(f"CONTRACT BREACH: {plural(len(breaches), 'change')} besides coordinates, centres,"
                         " feeds, marked lines:", width))
         out += [_fit("  " + b, width) for b in breaches]
     else:

@@ -34,6 +34,7 @@ from ilcnc.program.model import FLAG_CUTTER_COMP, MOVE_RAPID, Program
 from ilcnc.shop.log_identity import LogIdentity, check_block_numbers, check_log_identity, check_log_order
 from ilcnc.units import MM_PER_INCH
 from ilcnc.vcnc.command_error import CommandSignal, command_signal_from_run, measurement_gate_mm, reference_command_samples
+from ilcnc.wording import plural
 
 __all__ = ["Measurement", "check_log_memory", "interpolate_along_path", "measure_log", "measure_points"]
 
@@ -269,7 +270,9 @@ def measure_log(
                        f" {ran.path.name}: an incomplete run")
     notes = []
     if sig.valid.size and cover < 1.0:
-        notes.append(f"{int((~sig.valid).sum())} commands not measured by the log are left as they are")
+        n_out = int((~sig.valid).sum())
+        notes.append(f"{plural(n_out, 'command')} not measured by the log {'is' if n_out == 1 else 'are'} left as"
+                     f" {'it is' if n_out == 1 else 'they are'}")
     rule, classes = profile_move_classes(original, profile)
     above = air_above_mm(original, rule, classes, resolution_mm=profile.machine.resolution_mm)
     # an air move, or a cutting move's sample whose nearest point on the drawing is above the stock top
@@ -409,12 +412,14 @@ def measure_points(
     sig = CommandSignal(ee, sig_t, valid, "points")
     notes = []
     if filled.any():
-        notes.append(f"{int(filled.sum())} commands between measured ones (at most {reach:.3g} mm of path apart)"
-                     " take the error interpolated along the path")
+        n_filled = int(filled.sum())
+        notes.append(f"{plural(n_filled, 'command')} between measured ones (at most {reach:.3g} mm of path apart)"
+                     f" {'takes' if n_filled == 1 else 'take'} the error interpolated along the path")
     if (~valid).any():
         far = np.flatnonzero(~valid)
         lines = ", ".join(str(int(original.command_line[k])) for k in far[:8]) + (", ..." if far.size > 8 else "")
-        notes.append(f"{far.size} of {kk} commands are far from any measured point and are left as they are"
+        notes.append(f"{far.size} of {plural(kk, 'command')} {'is' if far.size == 1 else 'are'} far from any measured"
+                     f" point and {'is left as it is' if far.size == 1 else 'are left as they are'}"
                      f" (lines {lines})")
     return Measurement(kind="points", signal=sig, stats=_stats(np.linalg.norm(e[measured], axis=1)), notes=notes)
 

@@ -6,7 +6,7 @@ The first run after an install compiles ilcnc's numba kernels (20-40 s; numba ke
 of the first real command: it reads a small built-in program (a five-pointed star, the same as
 ``samples/own/star.ngc``) and a generated long one (the reader's compiled scanner), runs it on the built-in
 machine (the example mill of ``configs/example-mill.yaml``) chunk by chunk as ``ilcnc simulate`` and
-``ilcnc check`` do, with every sample kept as ``simulate --out`` does, and learns one iteration as
+``ilcnc check`` do, with every sample kept as ``simulate --log-out`` does, and learns one iteration as
 ``ilcnc learn`` does, and checks that the figures are finite. A profile with other drive models
 (friction, a cross-coupled controller) compiles its own kernels on its first run.
 """
@@ -19,6 +19,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from ilcnc.wording import plural
 
 __all__ = ["SelftestResult", "run_selftest"]
 
@@ -85,7 +87,7 @@ def run_selftest(progress: Callable[[str], None] | None = None) -> SelftestResul
         lines += [f"G1 X{(i % 50) * 0.2:.3f} Y{(i // 50) * 0.2:.3f}" for i in range(SCANNER_MIN_LINES)]
         long_path.write_text("\n".join([*lines, "M2", ""]), encoding="ascii")
         star = read_program(star_path, default_units=profile.machine.units)
-        step("read a long program", lambda: f"{len(read_program(long_path).moves)} moves")
+        step("read a long program", lambda: plural(len(read_program(long_path).moves), "move"))
         step("simulate (chunk by chunk)", lambda: "max " + um(simulate_figures(star, profile).stats.max_mm))
         step("simulate (every sample)", lambda: "max " + um(simulate_program(star, profile).stats.max_mm))
         def learn() -> str:

@@ -54,6 +54,7 @@ from ilcnc.program.model import Program
 from ilcnc.shop.measure import path_position_mm
 from ilcnc.shop.state import IterationEntry, LearnState, sha256_bytes, state_lock
 from ilcnc.vcnc.command_error import CommandSignal, error_kind
+from ilcnc.wording import plural
 
 __all__ = ["LearnOutcome", "LearnRequest", "find_stamp", "learn_part", "stamp_text", "unstamp_text"]
 
@@ -727,7 +728,7 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     if entry.iteration >= n_iter:
         state.status = LearnStatus.MAX_ITERATIONS
         state.save()
-        message = f"{entry.iteration} iterations made (the limit): keep running {state.best().program}"  # type: ignore[union-attr]
+        message = f"{plural(entry.iteration, 'iteration')} made (the limit): keep running {state.best().program}"  # type: ignore[union-attr]
         return _measured_outcome(req, state, LearnStatus.MAX_ITERATIONS, message, None, [], notes)
     learner = Learner.for_program(original, profile)
     best = state.best()

@@ -84,5 +84,5 @@ def run_virtual(program: Program, profile: MachineProfile, *, against: Program |
 
 def simulate_figures(program: Program, profile: MachineProfile, *, against: Program | None = None,
                      progress: Callable[[str], None] | None = None) -> RunFigures:
-    """The figures of a run in the least memory (``ilcnc simulate`` without ``--out``, ``ilcnc check``)."""
+    """The figures of a run in the least memory (``ilcnc simulate`` without ``--log-out``, ``ilcnc check``)."""
     return run_virtual(program, profile, against=against, progress=progress)

@@ -25,7 +25,7 @@ def tiny_cat(tmp_path_factory: pytest.TempPathFactory) -> dict:
     part = d / "tiny_cat_outline.ngc"
     part.write_bytes((SAMPLES / "gcode" / "tiny_cat_outline.ngc").read_bytes())
     log = d / "run.csv"
-    cli_json("linuxcnc", "run", part, "--log", log, "--time-scale", 8)
+    cli_json("linuxcnc", "run", part, "--log-out", log, "--time-scale", 8)
     return cli_json("simulate", part, "--profile", PROFILE, "--compare", log)["fidelity"]
 
 

@@ -34,7 +34,7 @@ def loop(tmp_path_factory) -> dict:
     state = d / "state"
     logs, outs, learned = [], [part], []
     log = d / "run0.csv"
-    cli_json("linuxcnc", "run", part, "--log", log, "--time-scale", 8)
+    cli_json("linuxcnc", "run", part, "--log-out", log, "--time-scale", 8)
     logs.append(log)
     for i in range(1, 5):
         out = d / f"jsdc.ilc{i}.ngc"
@@ -43,7 +43,7 @@ def loop(tmp_path_factory) -> dict:
             shutil.copytree(state, d / "state-open")
         log = d / f"run{i}.csv"
         # LinuxCNC must accept every compensated program (a refusal raises and fails the test)
-        cli_json("linuxcnc", "run", out, "--log", log, "--time-scale", 8)
+        cli_json("linuxcnc", "run", out, "--log-out", log, "--time-scale", 8)
         outs.append(out)
         logs.append(log)
     last = cli_json("learn", part, "--profile", PROFILE, "--log", log, "--state", state, "--out", d / "jsdc.ilc5.ngc")
@@ -146,7 +146,7 @@ def compass_head(tmp_path_factory) -> dict:
     head = (REPO / "samples" / "compass.ngc").read_text(encoding="latin-1").splitlines()[:60]
     part.write_text("\n".join(head) + "\nG0 Z5\nM2\n", encoding="latin-1")
     log = d / "run0.csv"
-    cli_json("linuxcnc", "run", part, "--log", log, "--time-scale", 8)
+    cli_json("linuxcnc", "run", part, "--log-out", log, "--time-scale", 8)
     return {"part": part, "outs": [part], "logs": [log]}
 
 

@@ -40,12 +40,12 @@ def loop(tmp_path_factory) -> dict:
     profile = PROFILE  # as shipped: Γ 0.5, Q 20 Hz, 3 model-assisted steps per measured one
     state = d / "state"
     log = d / "run0.csv"
-    cli_json("linuxcnc", "run", part, "--log", log, "--time-scale", 8)
+    cli_json("linuxcnc", "run", part, "--log-out", log, "--time-scale", 8)
     for i in range(1, 5):
         out = d / f"square.ilc{i}.ngc"
         cli_json("learn", part, "--profile", profile, "--log", log, "--state", state, "--out", out)
         log = d / f"run{i}.csv"
-        cli_json("linuxcnc", "run", out, "--log", log, "--time-scale", 8)
+        cli_json("linuxcnc", "run", out, "--log-out", log, "--time-scale", 8)
     last = cli_json("learn", part, "--profile", profile, "--log", log, "--state", state, "--out", d / "square.ilc5.ngc")
     return {"part": part, "last": last}
 
