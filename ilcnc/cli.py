@@ -534,11 +534,7 @@ def report(
         _fail(exc)
     f = done.figures
     if as_json:
-        typer.echo(json.dumps({"files": [str(p) for p in done.files], "shown_iteration": done.shown_iteration,
-                               "magnify": f.magnify, "zoom_magnify": f.zoom_magnify, "arrows_drawn": f.arrows_drawn,
-                               "arrows_total": f.arrows_total, "worst_line": done.worst_line,
-                               "zoom_half_mm": f.zoom_half_mm, "corners": f.corners, "diff_rows": done.diff_rows,
-                               "diff_changed": done.diff_changed, "cutting_rule": done.rule}))
+        typer.echo(json.dumps(done.to_json()))
         return
     typer.echo(f"iteration {done.shown_iteration} against the original: corrections ×{f.magnify:g} in"
                f" {done.files[0].name}, {f.arrows_drawn} of {f.arrows_total} corrected end points drawn; zoom on line"
@@ -1097,23 +1093,12 @@ def linuxcnc_run(
     started by ilcnc is waited for the same way, never stopped. The leftovers
     of a crashed run are cleaned up.
     """
-    import tempfile
-
-    from ilcnc.axislog.halsampler import commands_from_lines
-    from ilcnc.axislog.log import write_axis_log
-    from ilcnc.program import read_program
-    from ilcnc.shop import linuxcnc as lcnc
+    from ilcnc.shop.linuxcnc import record_run
 
     try:
-        prog = read_program(program)
-        with tempfile.TemporaryDirectory(prefix="ilcnc-lcnc-") as tmp:
-            raw_path = raw if raw is not None else Path(tmp) / "run.hal.log"
-            res = lcnc.run_program(program, config, raw_path, time_scale=time_scale, settle_s=settle_s,
-                                   timeout_s=timeout_s, lock_timeout_s=lock_timeout_s,
-                                   on_wait=lambda line: typer.echo(line, err=True))
-            alog = res.log
-            alog.k = commands_from_lines(alog.line, prog)
-            write_axis_log(log_out, alog, protect=(program,))
+        res = record_run(program, config, log_out, raw, time_scale=time_scale, settle_s=settle_s, timeout_s=timeout_s,
+                         lock_timeout_s=lock_timeout_s, on_wait=lambda line: typer.echo(line, err=True))
+        alog = res.log
     except IlcncError as exc:
         _fail(exc)
     info = {"program": str(program), "log": str(log_out), "samples": alog.n_samples, "program_s": res.program_s,
@@ -1198,22 +1183,7 @@ def linuxcnc_prepare(
     if as_json:
         typer.echo(json.dumps({**res.to_json(), "hal_file": str(write_hal) if write_hal else None}))
         return
-    typer.echo(f"{program.name}: path control (start-up: {res.startup}):")
-    for r in res.ranges:
-        typer.echo(f"  {r.text(res.units)}")
-    if res.ready:
-        typer.echo(f"ready: every feed move stays within the corner tolerance {res.tolerance_mm:g} mm")
-    else:
-        typer.echo(f"change before the first run (corner tolerance {res.tolerance_mm:g} mm; docs/linuxcnc.md 4):")
-        for c in res.changes:
-            typer.echo(f"  - {c}")
-    for n in res.notes:
-        typer.echo(f"note: {n}")
-    where = f"written to {write_hal}" if write_hal else "save as ilcnc-log.hal"
-    typer.echo(f"HAL ({where}; load it after the machine's HAL files: [HAL] HALFILE = ilcnc-log.hal):")
-    typer.echo(res.hal, nl=False)
-    typer.echo(f"record: {res.record}")
-    typer.echo(f"learn:  {res.learn}")
+    typer.echo(res.text(write_hal), nl=False)
 
 
 def main() -> None:

@@ -54,8 +54,9 @@ COMMANDS_BY_NAME = [(" ".join(p), c) for p, c in COMMANDS]
 
 def test_the_walk_finds_every_command_and_group() -> None:
     names = {" ".join(p) for p, _c in COMMANDS}
-    assert {"", "learn", "simulate", "identify", "check", "batch", "linuxcnc", "linuxcnc run"} <= names
-    assert len(LEAVES) == 11
+    assert {"", "learn", "simulate", "identify", "check", "batch", "report", "linuxcnc", "linuxcnc run",
+            "linuxcnc profile", "linuxcnc prepare"} <= names
+    assert len(LEAVES) == 14
 
 
 @pytest.mark.parametrize("path", [p for p, _c in COMMANDS], ids=IDS)

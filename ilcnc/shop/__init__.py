@@ -24,7 +24,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'inspect': ('InspectReport', 'command_table_csv', 'corner_rounding_warnings', 'inspect_program', 'print_report'),
     'linuxcnc': (
         'DEFAULT_CONFIG_DIR', 'DEFAULT_LOCK_TIMEOUT_S', 'LinuxCNCBusyError', 'LockHolder', 'MAX_TIME_SCALE',
-        'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'run_lock', 'run_program',
+        'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'record_run', 'run_lock', 'run_program',
         'stray_percent_line'
     ),
     'linuxcnc_config': (

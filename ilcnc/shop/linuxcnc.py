@@ -84,6 +84,7 @@ __all__ = [
     "linuxcnc_available",
     "lock_holder",
     "other_linuxcnc",
+    "record_run",
     "run_lock",
     "run_program",
     "stray_percent_line"
@@ -979,3 +980,21 @@ def _raise_run_error(program: Path, text: str, res: dict, errors: list[str], raw
     if line is None and res.get("line"):
         line = int(res["line"]) + 1  # stat.read_line was one before the refused line in every probe
     raise InputError(program, line, f"LinuxCNC refused the program: {first}")
+
+
+def record_run(program_path: Path, config_dir: Path | None, log_out: Path, raw_path: Path | None = None,
+               **run_kw: object) -> RunResult:
+    """``ilcnc linuxcnc run``: run the program (:func:`run_program`, keyword arguments passed on) and write its
+    axis log to ``log_out`` as an ilcnc CSV with each sample's command index (the program is never written
+    over); the raw halsampler output goes to ``raw_path``, or a temporary file that is removed."""
+    from ilcnc.axislog.halsampler import commands_from_lines
+    from ilcnc.axislog.log import write_axis_log
+    from ilcnc.program import read_program
+
+    prog = read_program(program_path)
+    with tempfile.TemporaryDirectory(prefix="ilcnc-lcnc-") as tmp:
+        res = run_program(program_path, config_dir, raw_path if raw_path is not None else Path(tmp) / "run.hal.log",
+                          **run_kw)
+        res.log.k = commands_from_lines(res.log.line, prog)
+        write_axis_log(log_out, res.log, protect=(program_path,))
+    return res

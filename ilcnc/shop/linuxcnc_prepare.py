@@ -147,6 +147,21 @@ class Preparation:
                 "learn": self.learn, "notes": self.notes}
 
 
+    def text(self, hal_file: Path | None = None) -> str:
+        """What the command prints: the path control, the changes to make, the HAL lines and the commands."""
+        out = [f"{self.program.name}: path control (start-up: {self.startup}):"]
+        out += [f"  {r.text(self.units)}" for r in self.ranges]
+        if self.ready:
+            out.append(f"ready: every feed move stays within the corner tolerance {self.tolerance_mm:g} mm")
+        else:
+            out.append(f"change before the first run (corner tolerance {self.tolerance_mm:g} mm; docs/linuxcnc.md 4):")
+            out += [f"  - {c}" for c in self.changes]
+        out += [f"note: {n}" for n in self.notes]
+        where = f"written to {hal_file}" if hal_file else "save as ilcnc-log.hal"
+        out.append(f"HAL ({where}; load it after the machine's HAL files: [HAL] HALFILE = ilcnc-log.hal):")
+        return "\n".join(out) + "\n" + self.hal + f"record: {self.record}\nlearn:  {self.learn}\n"
+
+
 def _in(v_mm: float, units: str) -> str:
     """A length for a program word in the program's units (4 decimals of mm, 5 of inch)."""
     v = v_mm / MM_PER_INCH if units == "inch" else v_mm

@@ -85,6 +85,14 @@ class StateReport:
     diff_changed: int
     rule: str
 
+    def to_json(self) -> dict[str, object]:
+        f = self.figures
+        return {"files": [str(p) for p in self.files], "shown_iteration": self.shown_iteration,
+                "magnify": f.magnify, "zoom_magnify": f.zoom_magnify, "arrows_drawn": f.arrows_drawn,
+                "arrows_total": f.arrows_total, "worst_line": self.worst_line, "zoom_half_mm": f.zoom_half_mm,
+                "corners": f.corners, "diff_rows": self.diff_rows, "diff_changed": self.diff_changed,
+                "cutting_rule": self.rule}
+
 
 def default_report_dir(state_dir: Path) -> Path:
     """``part.ngc.state`` -> ``part.ngc.report`` beside it (any other name: NAME.report)."""
