@@ -209,5 +209,8 @@ def splice(data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[np.in
     seg_len[1::2] = new_length
     out_at = np.cumsum(seg_len) - seg_len
     total = int(seg_len.sum())
-    index = np.arange(total, dtype=np.int64) + np.repeat(seg_from - out_at, seg_len)
+    # one index per output byte: int32 while it fits (half the memory traffic of int64 on a 20 MB program)
+    itype = np.int32 if max(total, both.size) < 2**31 else np.int64
+    index = np.arange(total, dtype=itype)
+    index += np.repeat((seg_from - out_at).astype(itype), seg_len)
     return both[index]

@@ -379,7 +379,8 @@ def _rewrite_fast(
 def _reorder(new: NDArray[np.uint8], at: NDArray[np.int64], length: NDArray[np.int64]) -> NDArray[np.uint8]:
     """The pieces ``new[at[i]:at[i] + length[i]]`` one after the other in the order of ``i``."""
     out_at = np.cumsum(length) - length
-    index = np.arange(int(length.sum()), dtype=np.int64) + np.repeat(at - out_at, length)
+    index = np.arange(int(length.sum()), dtype=np.int64)
+    index += np.repeat(at - out_at, length)
     return new[index]
 
 
