@@ -54,6 +54,25 @@ folders, summary).
 Timings are of a shared 2-core machine: compare the ratios measured in one
 run, not figures of different runs.
 
+Measured 2026-12-03, issue 24 (``python bench/scale.py --skip-batch --check``, exit 1; other jobs kept
+the load at 10-12 throughout, so wall times are ~2x a quiet machine's; lines wrapped)::
+
+    learn (learn_virtual, 1 iteration, example-mill.yaml; child process each)
+      stellabee1.ngc         measured: iteration 1  13.79 s = plan 3.45 s (25%)  drives 2.37 s (17%)  contour 5.82 s
+          (42%)  error 0.28 s (2%)  law 0.19 s (1%)  write 1.69 s (12%); iteration 0 15.15 s, learn_virtual 29.61 s
+                             peak 1.08 GB (42 B/sample); read 0.53 s: iteration = 26 x reading the program
+      stellabee1x6.ngc       measured: 132.73 s = plan 26.83 s  drives 17.66 s  contour 67.08 s  error 2.53 s  law 0.83 s
+          write 17.80 s; peak 2.38 GB
+                             iteration = 35 x reading the program (3.83 s), 1.60 x stellabee1's iteration per line;
+                             write 17.80 s = 4.65 x the read
+      learn 1.02M lines: iteration 1           132.7 s (measured)              target < 60 s         -> NOT MET
+      learn 1.02M lines: peak memory           2.4 GB (measured)               target < 4 GB         -> met
+
+The learning runs chunk by chunk now (``ilcnc.vcnc.stream``): 1M lines are measured, not extrapolated,
+in 2.4 GB. The time target is not met under this load; per line the iteration cost 1.6x stellabee1's
+(plan 1.3x, drives 1.2x, contour 1.9x, write 1.75x; the two children ran minutes apart under a load
+that moved, so part of it is the load: rerun on a quiet machine). The bullets below are of 2026-11-23, before the streamed learning.
+
 Measured 2026-11-23 on the 2-core machine (``python bench/scale.py --check``, exit 1; a quiet moment
 of the shared machine, load 0.3 at the start; long lines wrapped)::
 
