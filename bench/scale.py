@@ -21,7 +21,9 @@ outside the timed call):
 * ``simulate``: ``simulate_figures`` with the profile (what ``ilcnc simulate`` without ``--log-out`` runs: chunk by chunk);
 * ``learn``: one iteration of ``learn_virtual(iterations=1,
   stop_on_stall=False)``, iteration 1 = the sum of its ``timings_s`` stages as
-  in ``bench/learn.py`` (targets < 3 min and < 4 GB).
+  in ``bench/learn.py`` (issue 24: < 60 s and < 4 GB on the 1M-line program, measured: a
+  figure extrapolated from stellabee1 counts as not met), printed with its ratio to reading the
+  same program in the same child and to stellabee1's iteration per line.
 
 The same stages run on stellabee1 alone (1/6 of the program): the measured
 figures per line. Before a 1M-line stage the memory it needs is estimated
@@ -51,6 +53,38 @@ folders, summary).
 
 Timings are of a shared 2-core machine: compare the ratios measured in one
 run, not figures of different runs.
+
+Measured 2026-12-03, issue 24 (``python bench/scale.py --skip-batch --check``, exit 0; load 4.4 at the
+start, 2.8 at the end, after hours at 8-13; lines wrapped)::
+
+    machine: 2 cores, load 4.39 8.19 9.87, 22.8 GB available
+    big program: stellabee1.ngc x 6 (5 program ends removed) -> .../stellabee1x6.ngc: 1,015,315 lines, 19.4 MB
+    ...
+    learn (learn_virtual, 1 iteration, example-mill.yaml; child process each)
+      stellabee1.ngc         measured: iteration 1   5.82 s = plan 1.55 s (27%)  drives 0.78 s (13%)  contour 2.59 s
+          (45%)  error 0.14 s (2%)  law 0.07 s (1%)  write 0.69 s (12%); iteration 0 4.06 s, learn_virtual 10.17 s
+                             peak 1.02 GB (40 B/sample); read 0.15 s: iteration = 39 x reading the program
+      stellabee1x6.ngc       extrapolated linearly per line (x 6.000):   34.9 s, peak 5.3 GB (34.4 us and 5.4 kB per line)
+      learn stellabee1x6.ngc (~139 M samples x 40 B, or per line): needs ~5.3 GB, 22.4 GB available: running
+      stellabee1x6.ngc       measured:  32.78 s = plan 9.85 s  drives 4.15 s  contour 12.82 s  error 0.76 s  law 0.40 s
+          write 4.80 s; peak 2.38 GB
+                             iteration = 42 x reading the program (0.77 s), 0.94 x stellabee1's iteration per line;
+                             write 4.80 s = 6.22 x the read
+    summary (129 s in all; load now 2.82 6.21 8.92)
+      inspect 1.02M lines, no profile          1.17 s                          target < 5 s          -> met
+      inspect 1.02M lines, --profile           9.24 s, 0.8 GB                  target -
+      simulate 1.02M lines: time               25.0 s (measured)               target -
+      simulate 1.02M lines: peak memory        1.7 GB (measured)               target -
+      learn 1.02M lines: iteration 1           32.8 s (measured)               target < 60 s         -> met
+      learn 1.02M lines: peak memory           2.4 GB (measured)               target < 4 GB         -> met
+      learn stellabee1.ngc (1/6): peak memory  1.0 GB (measured)               target < 4 GB         -> met
+
+The learning runs chunk by chunk now (``ilcnc.vcnc.stream``): the 1M-line iteration is measured, not
+extrapolated. Earlier the same day under load 10-12 it took 132.7 s (write 17.8 s) in the same 2.38 GB:
+the time target holds only when the machine is not shared by many jobs. The write stage on 1M lines
+(4.8 s) is 1.2x stellabee1's per line (the general rewrite path and the re-read of the out-of-order
+inserted words grow a little faster than the lines). The bullets below are of 2026-11-23, before the
+streamed learning.
 
 Measured 2026-11-23 on the 2-core machine (``python bench/scale.py --check``, exit 1; a quiet moment
 of the shared machine, load 0.3 at the start; long lines wrapped)::
@@ -182,7 +216,7 @@ BATCH_DIRS = ("gcode", "heidenhain", "contour")
 STAGES = ("plan", "drives", "contour", "error", "law", "write")
 
 TARGET_INSPECT_S = 5.0
-TARGET_ITER_S = 180.0
+TARGET_ITER_S = 60.0
 TARGET_LEARN_GB = 4.0
 TARGET_EFFICIENCY = 0.80
 
@@ -256,7 +290,9 @@ def _stage_learn(program: Path, profile: Path) -> dict[str, Any]:
     prof = load_profile(profile)
     learn_virtual(read_program(WARM_UP), prof, iterations=1, stop_on_stall=False)
     base = _peak_gb()
+    t0 = time.perf_counter()
     prog = read_program(program, default_units=prof.machine.units)
+    t_read = time.perf_counter() - t0
     t0 = time.perf_counter()
     res = learn_virtual(prog, prof, iterations=1, stop_on_stall=False)
     total = time.perf_counter() - t0
@@ -265,7 +301,7 @@ def _stage_learn(program: Path, profile: Path) -> dict[str, Any]:
             "iter0_s": res.iterations[0].timings_s.get("simulate", 0.0) + res.iterations[0].timings_s.get("error", 0.0),
             "runs": len(res.iterations), "status": res.status, "lines": prog.n_lines,
             "rms_um": [res.iterations[0].stats["rms"] * 1e3, res.best_record.stats["rms"] * 1e3],
-            "peak_gb": _peak_gb(), "base_gb": base}
+            "peak_gb": _peak_gb(), "base_gb": base, "read_s": t_read}
 
 
 def _tree(root: Path) -> dict[str, bytes]:
@@ -491,7 +527,8 @@ def _big(args: argparse.Namespace, work: Path, summary: list[tuple[str, str, str
                   + "  ".join(f"{k} {v:.2f} s ({v / t:.0%})" for k, v in tm.items() if v > 0.005)
                   + f"; iteration 0 {rs['iter0_s']:.2f} s, learn_virtual {rs['total_s']:.2f} s; "
                   f"RMS {rs['rms_um'][0]:.2f} -> {rs['rms_um'][1]:.2f} um")
-            print(f"  {'':22s} peak {rs['peak_gb']:.2f} GB ({_per(rs, n_small):.0f} B/sample)")
+            print(f"  {'':22s} peak {rs['peak_gb']:.2f} GB ({_per(rs, n_small):.0f} B/sample); read {rs['read_s']:.2f} s: "
+                  f"iteration = {t / rs['read_s']:.0f} x reading the program")
         lratio = n_lines / rs["lines"]
         x_t = t * lratio
         x_gb = rs["base_gb"] + (rs["peak_gb"] - rs["base_gb"]) * lratio
@@ -507,6 +544,10 @@ def _big(args: argparse.Namespace, work: Path, summary: list[tuple[str, str, str
             tb = rb["time_s"] if stage == "simulate" else rb["iter_s"]
             print(f"  {big.name:22s} measured: {tb:6.2f} s = " + "  ".join(f"{k} {v:.2f} s" for k, v in rb["timings"].items())
                   + f"; peak {rb['peak_gb']:.2f} GB")
+            if stage == "learn":
+                print(f"  {'':22s} iteration = {tb / rb['read_s']:.0f} x reading the program ({rb['read_s']:.2f} s), "
+                      f"{tb / x_t:.2f} x stellabee1's iteration per line; write {rb['timings']['write']:.2f} s = "
+                      f"{rb['timings']['write'] / rb['read_s']:.2f} x the read")
             t_fig, gb_fig, label = tb, rb["peak_gb"], "measured"
         else:
             t_fig, gb_fig, label = x_t, x_gb, f"extrapolated x{lratio:.2f}"
@@ -515,10 +556,11 @@ def _big(args: argparse.Namespace, work: Path, summary: list[tuple[str, str, str
             summary.append((f"{name}: time", "-", f"{t_fig:.1f} s ({label})", None))
             summary.append((f"{name}: peak memory", "-", f"{gb_fig:.1f} GB ({label})", None))
         else:
-            summary.append((f"{name}: iteration 1", f"< {TARGET_ITER_S / 60:.0f} min", f"{t_fig:.1f} s ({label})",
-                            t_fig < TARGET_ITER_S))
+            # issue 24: measured, not extrapolated -- an extrapolation is no evidence either way
+            summary.append((f"{name}: iteration 1", f"< {TARGET_ITER_S:.0f} s", f"{t_fig:.1f} s ({label})",
+                            rb is not None and t_fig < TARGET_ITER_S))
             summary.append((f"{name}: peak memory", f"< {TARGET_LEARN_GB:.0f} GB", f"{gb_fig:.1f} GB ({label})",
-                            gb_fig < TARGET_LEARN_GB))
+                            rb is not None and gb_fig < TARGET_LEARN_GB))
             summary.append((f"learn {small.name} (1/{args.copies}): peak memory", f"< {TARGET_LEARN_GB:.0f} GB",
                             f"{rs['peak_gb']:.1f} GB (measured)", rs["peak_gb"] < TARGET_LEARN_GB))
 

@@ -485,10 +485,14 @@ class Program:
 
     def line_start(self, line: int) -> int:
         """Character offset where 1-based ``line`` starts."""
+        return int(self.line_offsets()[line - 1])
+
+    def line_offsets(self) -> NDArray[np.int64]:
+        """Character offset where each line starts (index 0: line 1); computed once."""
         if self._line_starts is None:
             t = np.frombuffer(self.text.encode("latin-1"), dtype=np.uint8)
             self._line_starts = np.concatenate(([0], np.flatnonzero(t == 10) + 1))
-        return int(self._line_starts[line - 1])
+        return self._line_starts
 
     def line_text(self, line: int) -> tuple[int, str, str]:
         """(start offset, content without line ending, line ending) of 1-based ``line``."""

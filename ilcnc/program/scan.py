@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from ilcnc._jit import HAVE_NUMBA, njit
 
-__all__ = ["AVAILABLE", "scan_plain_blocks"]
+__all__ = ["AVAILABLE", "plain_block_spans", "scan_plain_blocks"]
 
 AVAILABLE = HAVE_NUMBA
 
@@ -32,11 +32,15 @@ _POW10 = np.array([10.0**i for i in range(23)])
 _ORDER_UPPER = np.array([ord(c) for c in "XYZIJKRF"], dtype=np.uint8)
 
 
-def _scan_impl(buf, starts, ends, pow10, order, out, slow):  # pragma: no cover - compiled
+def _scan_impl(buf, starts, ends, pow10, order, out, slow, spans, want_spans):  # pragma: no cover - compiled
     n = starts.shape[0]
     for li in range(n):
         p = starts[li]
         e = ends[li]
+        if want_spans:
+            for c in range(9):
+                spans[li, c, 0] = -1
+                spans[li, c, 1] = -1
         if e > p and buf[e - 1] == 13:
             e -= 1
         for c in range(9):
@@ -73,6 +77,9 @@ def _scan_impl(buf, starts, ends, pow10, order, out, slow):  # pragma: no cover 
                     ok = False
                 if ok:
                     out[li, 0] = float(last - 48)
+                    if want_spans:
+                        spans[li, 0, 0] = q - 1
+                        spans[li, 0, 1] = q
             p = q
             while p < e and (buf[p] == 32 or buf[p] == 9):
                 p += 1
@@ -89,6 +96,7 @@ def _scan_impl(buf, starts, ends, pow10, order, out, slow):  # pragma: no cover 
             p += 1
             while p < e and (buf[p] == 32 or buf[p] == 9):
                 p += 1
+            num_at = p
             neg = False
             if p < e and (buf[p] == 43 or buf[p] == 45):
                 if k == 7:  # F takes no sign
@@ -124,6 +132,9 @@ def _scan_impl(buf, starts, ends, pow10, order, out, slow):  # pragma: no cover 
                 ok = False
                 break
             out[li, k + 1] = -v if neg else v
+            if want_spans:
+                spans[li, k + 1, 0] = num_at
+                spans[li, k + 1, 1] = p
             k += 1
             while p < e and (buf[p] == 32 or buf[p] == 9):
                 p += 1
@@ -162,5 +173,38 @@ def scan_plain_blocks(data: bytes, line_start: NDArray[np.int64]) -> tuple[NDArr
     ends[-1] = len(data)
     out = np.empty((n, 9))
     slow = np.empty(n, dtype=np.bool_)
-    _scan_compiled(buf, line_start.astype(np.int64), ends, _POW10, _ORDER_UPPER, out, slow)
+    _scan_compiled(buf, line_start.astype(np.int64), ends, _POW10, _ORDER_UPPER, out, slow, _NO_SPANS, False)
     return out, slow
+
+
+_NO_SPANS = np.empty((1, 9, 2), dtype=np.int64)
+
+
+def plain_block_spans(data: NDArray[np.uint8], line_start: NDArray[np.int64], line_end: NDArray[np.int64]) -> tuple[
+        NDArray[np.int64], NDArray[np.bool_]]:
+    """Where the words of some plain blocks are: the spans of the groups of ``gcode._FAST_LINE``.
+
+    Parameters
+    ----------
+    data : ndarray of uint8
+        The program's bytes.
+    line_start, line_end : ndarray (n,)
+        Offsets of the lines' first byte and of their end (the ``\\n`` or the end of the data).
+
+    Returns
+    -------
+    spans : ndarray (n, 9, 2) of int64
+        Start and end offset in ``data`` of the G digit and the X Y Z I J K R F numbers (sign included),
+        -1 where absent: what the regular expression's groups 1-9 span.
+    slow : ndarray (n,) bool
+        Lines the scanner does not read as plain blocks (their spans are not set).
+    """
+    if _scan_compiled is None:  # pragma: no cover
+        raise RuntimeError("numba is not installed")
+    n = line_start.shape[0]
+    out = np.empty((n, 9))
+    slow = np.empty(n, dtype=np.bool_)
+    spans = np.empty((n, 9, 2), dtype=np.int64)
+    _scan_compiled(data, line_start.astype(np.int64), line_end.astype(np.int64), _POW10, _ORDER_UPPER, out, slow,
+                   spans, True)
+    return spans, slow

@@ -1,0 +1,216 @@
+"""Number words of a program's bytes, many at a time: read them, spell new numbers, splice them in.
+
+The lossless rewrite changes one or more numbers on most lines of a big CAM
+program (stellabee1: 250,000 numbers in 169,000 lines). Done word by word in
+Python that cost 15 µs a number, 27x what reading the whole program costs.
+Here the same arithmetic runs on numpy arrays:
+
+* :func:`parse_plain` reads words written plainly (``-12.345``, ``+12.``,
+  ``.5``: digits, one dot, a leading sign) to the float ``float(word)`` gives,
+  with their decimals and ``STYLE_*`` bits (as :func:`ilcnc.program.rewrite.spelling`);
+* :func:`spell` writes numbers with given decimals and styles, byte for byte
+  what :func:`ilcnc.program.rewrite.format_number` writes, and the value the
+  written text reads back as;
+* :func:`splice` makes sorted, non-overlapping replacements in the bytes.
+
+Words and numbers outside the exact range of the arithmetic (see each
+function) are flagged, and the caller spells them one by one: the results
+are the same either way.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ilcnc.program.model import STYLE_COMMA, STYLE_LITERAL, STYLE_NO_LEADING_ZERO, STYLE_PLUS, STYLE_TRAILING_DOT
+
+__all__ = ["parse_plain", "spell", "splice"]
+
+#: Exact powers of ten: 10**k is an integer below 2**53 for k <= 15, so float(10**k) is exact.
+_POW10_F = np.array([float(10**k) for k in range(16)])
+_POW10_I = np.array([10**k for k in range(19)], dtype=np.int64)
+#: Longest word :func:`parse_plain` reads (longer ones are flagged).
+_MAX_WORD = 17
+#: Most digits of a plainly read word: below 2**53, so the mantissa is an exact float.
+_MAX_DIGITS = 15
+#: Largest |value| * 10**decimals :func:`spell` rounds itself. Below 2**36 the product's rounding error is
+#: below 2**36 * 2**-53 = 7.6e-6 (half an ulp), so with the fraction farther than _HALF_GUARD from 0.5 the
+#: rounding of the exact binary value (what Python's format does) is the rounding of the product.
+_MAX_SCALED = float(2**36)
+_HALF_GUARD = 1e-4
+_MAX_DECIMALS = 15
+
+_DIGIT0, _DOT, _COMMA, _MINUS, _PLUS = 48, 46, 44, 45, 43
+
+
+def parse_plain(data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[np.int64]) -> tuple[
+        NDArray[np.bool_], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """Read the number words ``data[start:end]`` written plainly: ``[+-]digits[.digits]``.
+
+    Parameters
+    ----------
+    data : ndarray of uint8
+        The program's bytes.
+    start, end : ndarray of int64, shape (N,)
+        Byte spans of the words (the number only, without its letter).
+
+    Returns
+    -------
+    ok : ndarray of bool, shape (N,)
+        The word is plain (only digits, at most one dot, a sign in front; 1 to 15 digits, at most
+        17 characters); the other outputs are only meaningful here.
+    value : ndarray of float64
+        The number in program units: the mantissa (an exact float) divided by an exact power of ten, one
+        correctly rounded division, so the float ``float(word)`` reads.
+    decimals : ndarray of int64
+        Digits after the dot.
+    style : ndarray of int64
+        ``STYLE_LITERAL``, with ``STYLE_PLUS`` (``+5``), ``STYLE_NO_LEADING_ZERO`` (``.5``, ``-.5``) and
+        ``STYLE_TRAILING_DOT`` (``12.``) as written.
+    """
+    n = start.size
+    length = end - start
+    width = int(min(max(int(length.max()), 1), _MAX_WORD)) if n else 1
+    cols = np.arange(width)
+    inside = cols < length[:, None]
+    ch = data[np.minimum(start[:, None] + cols, data.size - 1)]
+    ch = np.where(inside, ch, 0)
+    digit = (ch >= _DIGIT0) & (ch <= _DIGIT0 + 9)
+    dot = ch == _DOT
+    minus = (ch == _MINUS) & (cols == 0)
+    plus = (ch == _PLUS) & (cols == 0)
+    n_dig = digit.sum(axis=1)
+    n_dot = dot.sum(axis=1)
+    ok = (length >= 1) & (length <= _MAX_WORD) & np.all(~inside | digit | dot | minus | plus, axis=1)
+    ok &= (n_dot <= 1) & (n_dig >= 1) & (n_dig <= _MAX_DIGITS)
+    dot_at = np.where(n_dot == 1, np.argmax(dot, axis=1), length)
+    decimals = np.where(n_dot == 1, length - dot_at - 1, 0).astype(np.int64)
+    # mantissa: each digit times ten to the number of digits after it
+    after = np.cumsum(digit[:, ::-1], axis=1)[:, ::-1] - digit
+    d_val = np.where(digit, ch.astype(np.int64) - _DIGIT0, 0)
+    mant = (d_val * _POW10_I[np.minimum(after, 18)]).sum(axis=1)
+    dec_ok = np.minimum(decimals, _MAX_DECIMALS)
+    value = mant.astype(np.float64) / _POW10_F[dec_ok]
+    neg = minus[:, 0]
+    signed = neg | plus[:, 0]
+    value = np.where(neg, -value, value)
+    first = np.where(signed, ch[:, min(1, width - 1)], ch[:, 0])
+    style = np.full(n, STYLE_LITERAL, dtype=np.int64)
+    style |= np.where(plus[:, 0], STYLE_PLUS, 0)
+    style |= np.where(first == _DOT, STYLE_NO_LEADING_ZERO, 0)
+    style |= np.where((n_dot == 1) & (decimals == 0), STYLE_TRAILING_DOT, 0)
+    return ok, value, decimals, style
+
+
+def spell(value: NDArray[np.float64], decimals: NDArray[np.int64], style: NDArray[np.int64], *,
+          klartext: bool = False) -> tuple[NDArray[np.bool_], NDArray[np.uint8], NDArray[np.int64],
+                                           NDArray[np.float64]]:
+    """Spell numbers as :func:`ilcnc.program.rewrite.format_number` does, all at once.
+
+    Parameters
+    ----------
+    value : ndarray of float64, shape (N,)
+        The numbers (program units).
+    decimals : ndarray of int64, shape (N,)
+        Decimal places of each.
+    style : ndarray of int64, shape (N,)
+        ``STYLE_*`` bits of the word each replaces.
+    klartext : bool
+        Heidenhain: an explicit sign on every number.
+
+    Returns
+    -------
+    ok : ndarray of bool, shape (N,)
+        Spelled here: finite, 0..15 decimals, ``|value| * 10**decimals`` below 2**36 and its fraction
+        farther than 1e-4 from one half (where rounding the float product might round another way than
+        rounding the exact binary value). The caller spells the others with ``format_number``.
+    text : ndarray of uint8
+        The spelled numbers (only those ``ok``), one after the other.
+    length : ndarray of int64, shape (N,)
+        Bytes of each in ``text`` (0 where not ``ok``).
+    written : ndarray of float64, shape (N,)
+        The value each written number reads back as (``float(text)``: the rounded integer divided by
+        an exact power of ten, one correctly rounded division).
+    """
+    v = np.asarray(value, dtype=np.float64)
+    n = v.size
+    d = np.asarray(decimals, dtype=np.int64)
+    st = np.asarray(style, dtype=np.int64)
+    ok = np.isfinite(v) & (d >= 0) & (d <= _MAX_DECIMALS)
+    dd = np.where(ok, d, 0)
+    scaled = np.abs(np.where(ok, v, 0.0)) * _POW10_F[dd]
+    ok &= scaled < _MAX_SCALED
+    scaled = np.where(ok, scaled, 0.0)
+    floor = np.floor(scaled)
+    frac = scaled - floor
+    ok &= np.abs(frac - 0.5) > _HALF_GUARD
+    rounded = floor.astype(np.int64) + (frac > 0.5)
+    rounded = np.where(ok, rounded, 0)
+    negative = (v < 0) & (rounded != 0)
+    written = rounded.astype(np.float64) / _POW10_F[dd]
+    written = np.where(negative, -written, written)
+    ip = rounded // _POW10_I[dd]
+    fp = rounded - ip * _POW10_I[dd]
+    n_int = 1 + (ip[:, None] >= _POW10_I[1:12]).sum(axis=1)
+    n_int = np.where((ip == 0) & (dd > 0) & ((st & STYLE_NO_LEADING_ZERO) != 0), 0, n_int)
+    has_sign = negative | (~negative & (klartext | ((st & STYLE_PLUS) != 0)))
+    has_sep = (dd > 0) | ((st & STYLE_TRAILING_DOT) != 0)
+    wi = int(n_int[ok].max()) if ok.any() else 1
+    wf = int(dd[ok].max()) if ok.any() else 0
+    # one row per number: sign, wi integer digits (right-aligned), separator, wf decimals (left-aligned)
+    width = 2 + wi + wf
+    chars = np.zeros((n, width), dtype=np.uint8)
+    used = np.zeros((n, width), dtype=bool)
+    chars[:, 0] = np.where(negative, _MINUS, _PLUS)
+    used[:, 0] = has_sign
+    for c in range(wi):
+        power = wi - 1 - c
+        chars[:, 1 + c] = _DIGIT0 + (ip // _POW10_I[power]) % 10
+        used[:, 1 + c] = power < n_int
+    chars[:, 1 + wi] = np.where((st & STYLE_COMMA) != 0, _COMMA, _DOT)
+    used[:, 1 + wi] = has_sep
+    for c in range(wf):
+        power = np.maximum(dd - 1 - c, 0)
+        chars[:, 2 + wi + c] = _DIGIT0 + (fp // _POW10_I[power]) % 10
+        used[:, 2 + wi + c] = c < dd
+    used &= ok[:, None]
+    return ok, chars[used], used.sum(axis=1).astype(np.int64), written
+
+
+def splice(data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[np.int64], new: NDArray[np.uint8],
+           new_start: NDArray[np.int64], new_length: NDArray[np.int64]) -> NDArray[np.uint8]:
+    """The bytes with ``data[start[i]:end[i]]`` replaced by ``new[new_start[i]:new_start[i] + new_length[i]]``.
+
+    Parameters
+    ----------
+    data : ndarray of uint8
+        The source bytes.
+    start, end : ndarray of int64, shape (E,)
+        Spans to replace, sorted and not overlapping (``end[i] <= start[i + 1]``; ``start == end`` inserts).
+    new : ndarray of uint8
+        The replacement bytes of all edits, in any order.
+    new_start, new_length : ndarray of int64, shape (E,)
+        Where each edit's replacement is in ``new``.
+
+    Returns
+    -------
+    ndarray of uint8
+        The new bytes: one gather from ``data`` followed by ``new``, index by index.
+    """
+    n = data.size
+    both = np.concatenate((data, new))
+    k = start.size
+    seg_from = np.empty(2 * k + 1, dtype=np.int64)
+    seg_len = np.empty(2 * k + 1, dtype=np.int64)
+    seg_from[0::2] = np.concatenate(([0], end))
+    seg_len[0::2] = np.concatenate((start, [n])) - seg_from[0::2]
+    seg_from[1::2] = n + new_start
+    seg_len[1::2] = new_length
+    out_at = np.cumsum(seg_len) - seg_len
+    total = int(seg_len.sum())
+    # one index per output byte: int32 while it fits (half the memory traffic of int64 on a 20 MB program)
+    itype = np.int32 if max(total, both.size) < 2**31 else np.int64
+    index = np.arange(total, dtype=itype)
+    index += np.repeat((seg_from - out_at).astype(itype), seg_len)
+    return both[index]

@@ -1,0 +1,132 @@
+"""The vectorised rewrite (ilcnc.program.numwords, issue 24 item 3) writes what the word-by-word code writes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ilcnc.program import read_program, rewrite, scan
+from ilcnc.program.model import (
+    SPAN_LAZY,
+    STYLE_COMMA,
+    STYLE_LITERAL,
+    STYLE_NO_LEADING_ZERO,
+    STYLE_PLUS,
+    STYLE_TRAILING_DOT,
+)
+from ilcnc.program.numwords import parse_plain, spell
+from ilcnc.program.rewrite import apply_corrections, format_number, spelling
+
+SAMPLES = Path(__file__).resolve().parents[1] / "samples"
+#: Real programs of every kind the rewrite meets: CAM G-code with arcs and modal axes (inch and mm), lower-case
+#: and spaced words, Klartext.
+PROGRAMS = [
+    SAMPLES / "jsdc.gcode",
+    SAMPLES / "compass.ngc",
+    SAMPLES / "third_party" / "gcode" / "Cereal.ngc",
+    SAMPLES / "third_party" / "gcode" / "arcspiral.ngc",
+    SAMPLES / "third_party" / "gcode" / "systems.ngc",
+    SAMPLES / "third_party" / "contour" / "vcarve.ngc",
+    SAMPLES / "third_party" / "heidenhain" / "apt_top-light-cover_11.h",
+]
+
+
+def _words(prog: object) -> tuple[list[str], np.ndarray, np.ndarray]:
+    prog.resolve_spans()  # type: ignore[attr-defined]
+    mv = prog.moves  # type: ignore[attr-defined]
+    have = (mv.word_start >= 0) & ((mv.word_style & STYLE_LITERAL) != 0)
+    ws, we = mv.word_start[have], mv.word_end[have]
+    text = prog.text  # type: ignore[attr-defined]
+    return [text[a:b] for a, b in zip(ws.tolist(), we.tolist(), strict=True)], ws, we
+
+
+@pytest.mark.parametrize("path", PROGRAMS, ids=lambda p: p.name)
+def test_plain_words_read_as_float_and_spelling_read_them(path: Path) -> None:
+    prog = read_program(path)
+    words, ws, we = _words(prog)
+    data = np.frombuffer(prog.text.encode("latin-1"), dtype=np.uint8)
+    ok, value, dec, style = parse_plain(data, ws, we)
+    assert ok.sum() > 0.5 * len(words)  # most CAM words are plain
+    for k in np.flatnonzero(ok).tolist():
+        w = words[k]
+        assert value[k] == float(w), w  # bit for bit: one correctly rounded division
+        assert (int(dec[k]), int(style[k])) == spelling(w), w
+    for k in np.flatnonzero(~ok).tolist():  # what is left to the word-by-word code is not plain
+        w = words[k]
+        assert any(c not in "0123456789.+-" for c in w) or w.count(".") > 1 or len(w) > 15, w
+
+
+@pytest.mark.parametrize("klartext", [False, True])
+def test_spell_writes_what_format_number_writes(klartext: bool) -> None:
+    # the numbers of real programs, moved by learned-size steps, and the halves where rounding is decided
+    values = []
+    for path in PROGRAMS[:4]:
+        _w, _s, _e = _words(read_program(path))
+        values.append(np.array([float(w.replace(",", ".")) for w in _w]))
+    base = np.concatenate(values)
+    rng = np.random.default_rng(24)
+    v = np.concatenate((base + rng.normal(0.0, 0.01, base.size), base, -base, [0.0, -0.0, 0.125, -0.125, 2.5, 0.0005,
+                                                                               -0.00049, 1e-9, -1e-9, 12345678.9]))
+    styles = [STYLE_LITERAL, STYLE_LITERAL | STYLE_PLUS, STYLE_LITERAL | STYLE_COMMA,
+              STYLE_LITERAL | STYLE_NO_LEADING_ZERO, STYLE_LITERAL | STYLE_TRAILING_DOT,
+              STYLE_LITERAL | STYLE_NO_LEADING_ZERO | STYLE_COMMA | STYLE_PLUS]
+    dec = rng.integers(0, 7, v.size)
+    sty = np.array(styles)[rng.integers(0, len(styles), v.size)]
+    ok, text, length, written = spell(v, dec, sty, klartext=klartext)
+    scaled = np.abs(v) * 10.0 ** dec
+    near_half = np.abs(scaled - np.floor(scaled) - 0.5) <= 1e-4
+    # left to format_number: the halves (where rounding is decided) and numbers too big to round exactly
+    assert not np.any(~ok & ~near_half & (scaled < 2.0**36))
+    assert ok.mean() > 0.9
+    at = np.concatenate(([0], np.cumsum(length)))
+    got = text.tobytes().decode("latin-1")
+    for k in np.flatnonzero(ok).tolist():
+        want = format_number(float(v[k]), int(dec[k]), int(sty[k]), klartext=klartext)
+        s = got[at[k]:at[k + 1]]
+        assert s == want, (v[k], dec[k], sty[k])
+        assert written[k] == float(want.replace(",", ".")), want
+
+
+def _corrections(prog: object, seed: int) -> np.ndarray:
+    """Learned-size corrections (a few µm, every fifth command none, Z on every other one) on the axes the learner
+    corrects."""
+    from ilcnc.learning.learner import axes_free_to_move
+
+    n = prog.n_commands  # type: ignore[attr-defined]
+    rng = np.random.default_rng(seed)
+    corr = rng.normal(0.0, 0.004, (n, 3))
+    corr[rng.random(n) < 0.2] = 0.0
+    corr[rng.random(n) < 0.5, 2] = 0.0
+    corr[~axes_free_to_move(prog)] = 0.0
+    return corr
+
+
+@pytest.mark.parametrize("path", PROGRAMS, ids=lambda p: p.name)
+def test_the_vectorised_rewrite_writes_what_the_general_path_writes(path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """The general path (a move at a time, ``format_number``) is the reference: every move through it gives the
+    same text and the same edits as the vectorised moves with it."""
+    prog = read_program(path)
+    corr = _corrections(prog, 7)
+    text, edits = apply_corrections(prog, corr, min_decimals=3)
+    assert len(edits) > 0.5 * np.count_nonzero(corr)
+    monkeypatch.setattr(rewrite, "_fast_moves", lambda program, changed, desired: np.zeros(len(program.moves), bool))
+    ref_text, ref_edits = apply_corrections(read_program(path), corr, min_decimals=3)
+    assert text == ref_text
+    assert list(edits) == list(ref_edits)
+
+
+@pytest.mark.skipif(not scan.AVAILABLE, reason="numba is not installed: the spans come from the regular expression")
+@pytest.mark.parametrize("path", [PROGRAMS[0], PROGRAMS[1], PROGRAMS[2], PROGRAMS[5]], ids=lambda p: p.name)
+def test_the_scanner_finds_the_spans_the_regular_expression_finds(path: Path) -> None:
+    every = read_program(path)
+    one = read_program(path)
+    lazy = np.flatnonzero(one.moves.insert_at == SPAN_LAZY)
+    assert lazy.size > 2000  # plain CAM blocks, read without their spans
+    every.resolve_spans()  # all at once: the compiled scanner
+    for i in lazy.tolist():  # one at a time: the regular expression
+        one.resolve_spans([i])
+    for name in ("word_start", "word_end", "center_start", "center_end", "insert_at"):
+        assert np.array_equal(getattr(every.moves, name), getattr(one.moves, name)), name
