@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 import re
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,6 +28,8 @@ from ilcnc.program.expr import Parameters
 from ilcnc.program.gcode_flow import has_control_flow, run_control_flow
 from ilcnc.program.gcode_frame import POSITION_READING_CYCLES, WorkFrames, position_reader, turn_xy
 from ilcnc.program.gcode_lexer import MAX_NUMBER, Block, Lexer, Word
+from ilcnc.program.gcode_plain import classify_lines as _classify
+from ilcnc.program.gcode_plain import resolve_fast_spans
 from ilcnc.program.geometry import arc_length_mm
 from ilcnc.program.model import (
     BLEND_EXACT_PATH,
@@ -66,16 +67,6 @@ __all__ = ["detect_dialect", "read_gcode"]
 _AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
 _CENTER_INDEX = {"I": 0, "J": 1, "K": 2}
 
-# The common CAM block: [N..] [G0|G1] [X..] [Y..] [Z..] [F..] in this order, literal numbers.
-_NUM = r"([-+]?(?:\d+(?:\.\d*)?|\.\d+))"
-_FAST_LINE = re.compile(
-    r"[ \t]*(?:[Nn]\d+[ \t]*)?(?:[Gg]0*([0-3])(?![\d.])[ \t]*)?"
-    rf"(?:[Xx][ \t]*{_NUM}[ \t]*)?(?:[Yy][ \t]*{_NUM}[ \t]*)?(?:[Zz][ \t]*{_NUM}[ \t]*)?"
-    rf"(?:[Ii][ \t]*{_NUM}[ \t]*)?(?:[Jj][ \t]*{_NUM}[ \t]*)?(?:[Kk][ \t]*{_NUM}[ \t]*)?"
-    rf"(?:[Rr][ \t]*{_NUM}[ \t]*)?"
-    r"(?:[Ff][ \t]*(\d+(?:\.\d*)?|\.\d+)[ \t]*)?\r?"
-)
-_ALL_LINES = re.compile(rf"^(?:{_FAST_LINE.pattern}$|(.+))", re.MULTILINE)
 _FAST_MOTION = {"0": 0, "1": 10, "2": 20, "3": 30}
 
 # Modal groups of G codes (codes as round(value * 10)).
@@ -1000,104 +991,6 @@ def _general(lexer: Lexer, interp: _Interpreter, lines: _Lines, line_start: np.n
         lexer.lenient = True
         return False, unsupported
     return running, unsupported
-
-
-#: Programs with more lines than this are classified by the compiled scanner (its import and first
-#: compilation cost more than the regular expression saves on small files).
-SCANNER_MIN_LINES = 20_000
-
-
-def _classify(text: str, data: bytes, n: int, line_start: np.ndarray, path: Path,
-              *, force: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Plain-block numbers (n, 9: G X Y Z I J K R F) and the mask of other ("slow") lines."""
-    use_scanner = force == "scanner" or (force is None and n >= SCANNER_MIN_LINES)
-    if use_scanner:
-        from ilcnc.program import scan
-
-        if scan.AVAILABLE:
-            return scan.scan_plain_blocks(data, line_start)
-    # one C-level regular-expression pass: plain CAM blocks (numbers captured) or other
-    rows = _ALL_LINES.findall(text)
-    if len(rows) != n:  # cannot happen for text split on "\n"; guard the invariant all the same
-        raise ProgramError(path, None, "internal error: line split mismatch")
-    slow = np.array([r[9] for r in rows], dtype=bool)
-    return _column_floats(rows, n), slow
-
-
-def _column_floats(rows: list[tuple[str, ...]], n: int) -> np.ndarray:
-    """The G X Y Z I J K R F captures of every line as an (n, 9) float array (NaN where absent).
-
-    Each column is joined into one string and parsed by numpy's C parser in
-    one call (measured ~3x faster than flattening all cells, and ~10x faster
-    than ``float()`` per cell); empty cells become ``nan`` by string replacement.
-    """
-    out = np.empty((n, 9))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        for c in range(9):
-            col = [r[c] for r in rows]  # one comprehension per column: ~8 ms, a third of zip(*rows)
-            text = "|" + "|".join(col) + "|"
-            text = text.replace("||", "|nan|").replace("||", "|nan|")
-            vals = np.fromstring(text[1:-1], dtype=np.float64, sep="|")
-            if vals.shape[0] != n:  # cannot happen for regex-captured numbers; keep a safe path
-                vals = np.array([x or "nan" for x in col], dtype=np.float64)
-            out[:, c] = vals
-    return out
-
-
-def resolve_fast_spans(program: Program, indices: np.ndarray) -> None:
-    """Find the word spans of plain blocks that the fast path left for later (``SPAN_LAZY``).
-
-    With numba, the compiled scanner finds them for all the blocks at once (a regular expression and numpy
-    element writes per block cost 25 µs: 4 s for the 150,000 blocks a learned CAM program rewrites); a block
-    it does not read as plain (only possible when the regular expression classified the file) goes through
-    the regular expression."""
-    mv = program.moves
-    idx = np.asarray(indices, dtype=np.int64)
-    idx = idx[mv.insert_at[idx] == SPAN_LAZY]
-    if idx.size == 0:
-        return
-    text = program.text
-    from ilcnc.program import scan
-
-    if scan.AVAILABLE and idx.size > 1:
-        data = np.frombuffer(text.encode("latin-1"), dtype=np.uint8)
-        offsets = program.line_offsets()
-        line0 = mv.line[idx].astype(np.int64) - 1
-        starts = offsets[line0]
-        ends = np.where(line0 + 1 < offsets.size, offsets[np.minimum(line0 + 1, offsets.size - 1)] - 1, data.size)
-        spans, slow = scan.plain_block_spans(data, starts, ends)
-        ok = ~slow
-        done, spans = idx[ok], spans[ok]
-        for a in range(3):
-            for start_col, end_col, group in ((mv.word_start, mv.word_end, 1 + a), (mv.center_start, mv.center_end,
-                                                                                     4 + a)):
-                lazy = start_col[done, a] == SPAN_LAZY
-                start_col[done[lazy], a] = spans[lazy, group, 0]
-                end_col[done[lazy], a] = spans[lazy, group, 1]
-        last = spans[:, :, 1].max(axis=1)
-        mv.insert_at[done] = np.where(last >= 0, last, starts[ok] - 1)  # as start + (-1) below: no group
-        idx = idx[slow]
-    for i in idx.tolist():
-        line = int(mv.line[i])
-        start = program.line_start(line)
-        end = text.find("\n", start)
-        s = text[start:] if end < 0 else text[start:end]
-        m = _FAST_LINE.fullmatch(s)
-        if m is None:  # pragma: no cover - the block matched when it was read
-            raise ProgramError(program.path, line, "internal error: block changed since it was read")
-        regs = m.regs
-        last = max(e for (_b, e) in regs[1:10])
-        for a in range(3):
-            if mv.word_start[i, a] == SPAN_LAZY:
-                b, e = regs[2 + a]
-                mv.word_start[i, a] = start + b
-                mv.word_end[i, a] = start + e
-            if mv.center_start[i, a] == SPAN_LAZY:
-                b, e = regs[5 + a]
-                mv.center_start[i, a] = start + b
-                mv.center_end[i, a] = start + e
-        mv.insert_at[i] = start + last
 
 
 def detect_dialect(path: Path, text: str) -> str:

@@ -8,7 +8,7 @@ the numbers on the way (measured on the 169,220-line sample: ~0.05 s against
 ~0.55 s for the regular expression plus numpy's string parsing, which is
 why the project carries its own scanner here).
 
-It accepts exactly what ``gcode._FAST_LINE`` accepts, and is checked against
+It accepts exactly what ``gcode_plain.FAST_LINE`` accepts, and is checked against
 it line by line on every sample (``tests/test_gcode.py``). A number is parsed
 as ``mantissa / 10**decimals`` with both exact in binary (at most 15
 significant digits, at most 22 decimals), which is the correctly rounded value,
@@ -182,7 +182,7 @@ _NO_SPANS = np.empty((1, 9, 2), dtype=np.int64)
 
 def plain_block_spans(data: NDArray[np.uint8], line_start: NDArray[np.int64], line_end: NDArray[np.int64]) -> tuple[
         NDArray[np.int64], NDArray[np.bool_]]:
-    """Where the words of some plain blocks are: the spans of the groups of ``gcode._FAST_LINE``.
+    """Where the words of some plain blocks are: the spans of the groups of ``gcode_plain.FAST_LINE``.
 
     Parameters
     ----------

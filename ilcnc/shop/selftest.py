@@ -60,7 +60,7 @@ def run_selftest(progress: Callable[[str], None] | None = None) -> SelftestResul
     from ilcnc.learning.learner import learn_virtual
     from ilcnc.profile.load import default_profile
     from ilcnc.program import read_program
-    from ilcnc.program.gcode import SCANNER_MIN_LINES
+    from ilcnc.program.gcode_plain import SCANNER_MIN_LINES
     from ilcnc.vcnc.run import simulate_figures
     from ilcnc.vcnc.simulate import simulate_program
 
