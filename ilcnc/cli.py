@@ -408,14 +408,18 @@ def _print_simulation(result, prog, console, out: Path | None) -> None:
 @app.command()
 def learn(
     program: Annotated[Path, typer.Argument(help="Part program (the drawing), or an output of the run given by --state.")],
-    profile: Annotated[Path, typer.Option("--profile", help="Machine profile YAML (drives, planner, learning law).")],
     out: Annotated[Path, typer.Option("--out", help="Compensated program to write (.nc/.ngc/.tap/.gcode or .h).")],
+    profile: Annotated[
+        Path | None, typer.Option("--profile", help="Machine profile YAML (drives, planner, learning law); not needed"
+                                  " with a probe height map.")
+    ] = None,
     iterations: Annotated[
         int | None, typer.Option("--iterations", min=1, max=1000, help="Largest number of iterations (profile default).")
     ] = None,
     log: Annotated[Path | None, typer.Option("--log", help="Axis log of the last program run on the machine: one step.")] = None,
     points: Annotated[
-        Path | None, typer.Option("--points", help="Measured points k,dx,dy,dz or x,y,z,dx,dy,dz (mm): one step.")
+        Path | None, typer.Option("--points", help="Measured points k,dx,dy,dz or x,y,z,dx,dy,dz (mm): one step; or a"
+                                  " sender's probe height map (bCNC, Candle, OpenCNCPilot, cncjs): level the program.")
     ] = None,
     state: Annotated[
         Path | None, typer.Option("--state", help="Learning-state directory (default for virtual learning: OUT.state).")
@@ -464,6 +468,18 @@ def learn(
     """
     from ilcnc.shop.workflow import LearnRequest, learn_part
 
+    if points is not None and _is_height_map(points):
+        given = [name for name, v in (("--log", log), ("--state", state), ("--report", report), ("--iterations", iterations),
+                                      ("--refine", refine), ("--force", force), ("--relearn", relearn),
+                                      ("--new-profile", new_profile), ("--stamp", stamp)) if v]
+        if given:
+            _fail(UsageError(given[0], f"does not go with a probe height map ({points}): levelling is one rewrite of"
+                                       " the program, not a learning step"))
+        _level(program, points, out, as_json)
+        return
+    if profile is None:
+        _fail(UsageError("--profile", "is required: the machine profile YAML (only a probe height map given to --points"
+                                      " needs none)"))
     _check_log_options(log_format, log_units, log_columns)
     try:
         _finite("--log-period", log_period, lo=0.0, open_lo=True, hi=1.0, unit="s")  # a sample period: µs to ms
@@ -487,6 +503,51 @@ def learn(
         typer.echo(json.dumps(outcome.to_json()))
         return
     _print_learning(outcome, console)
+
+
+def _is_height_map(points: Path) -> bool:
+    """True when --points names a sender's probe height map (by content and suffix) rather than a points CSV."""
+    from ilcnc.axislog.heightmap import detect_height_map
+
+    try:
+        return detect_height_map(points) is not None
+    except IlcncError as exc:
+        _fail(exc)
+
+
+def _level(program: Path, points: Path, out: Path, as_json: bool) -> None:
+    """``learn --points MAP``: level the program on a probe height map (docs/probemaps.md)."""
+    from ilcnc.shop.levelling import level_program
+
+    try:
+        res = level_program(program, points, out)
+    except IlcncError as exc:
+        _fail(exc)
+    if as_json:
+        typer.echo(json.dumps(res.to_json()))
+        return
+    console = _console()
+    t = _table(f"levelled: {program.name} on {points.name} ({res.map_format})", show_header=False)
+    t.add_column("what", overflow="fold")
+    t.add_column("value", overflow="fold")
+    ref = "the work Z zero of the probing" if res.reference_xy_mm is None else \
+        f"X{res.reference_xy_mm[0]:g} Y{res.reference_xy_mm[1]:g} ({res.reference_height_mm * 1e3:+.1f} µm)"
+    t.add_row("map grid (points)", f"{res.grid[1]} x {res.grid[0]}")
+    t.add_row("heights relative to", ref)
+    t.add_row("moves levelled / kept", f"{res.moves_levelled} / {res.moves_kept}")
+    t.add_row("dz min / max (µm)", f"{res.dz_min_mm * 1e3:+.1f} / {res.dz_max_mm * 1e3:+.1f}")
+    t.add_row("end points outside the map", f"{res.ends_outside} (farthest {res.outside_max_mm:.3f} mm; edge height held)")
+    t.add_row("straight feeds split", f"{res.lines_split} ({res.points_inserted} lines inserted,"
+              f" {len(res.split_refused)} refused)")
+    t.add_row("straight feeds: largest departure (µm)", f"{res.line_error_max_mm * 1e3:.2f}")
+    t.add_row("arcs kept as arcs / over tolerance", f"{res.arcs} / {res.arcs_over_tolerance}")
+    t.add_row("arcs: largest departure (µm)", f"{res.arc_error_max_mm * 1e3:.2f}")
+    console.print(t)
+    for line, reason in res.split_refused[:20]:
+        console.print(f"not split: line {line}: {reason}")
+    for n in res.notes:
+        console.print(n)
+    console.print(f"wrote {res.output}")
 
 
 def _learn_with_progress(learn_part, req, console):
