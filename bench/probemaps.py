@@ -48,17 +48,24 @@ def _js(v: float) -> str:
     return repr(v)
 
 
-def _grid() -> tuple[list[float], list[float]]:
-    xs = [X0 + (X1 - X0) * i / (NX - 1) for i in range(NX)]
-    ys = [Y0 + (Y1 - Y0) * j / (NY - 1) for j in range(NY)]
+Grid = tuple[float, float, int, float, float, int]
+#: The shipped maps' grid: (xmin, xmax, nx, ymin, ymax, ny), mm.
+GRID: Grid = (X0, X1, NX, Y0, Y1, NY)
+
+
+def _grid(g: Grid) -> tuple[list[float], list[float]]:
+    x0, x1, nx, y0, y1, ny = g
+    xs = [x0 + (x1 - x0) * i / (nx - 1) for i in range(nx)]
+    ys = [y0 + (y1 - y0) * j / (ny - 1) for j in range(ny)]
     return xs, ys
 
 
-def bcnc(f: Callable[[float, float], float]) -> bytes:
+def bcnc(f: Callable[[float, float], float], g: Grid = GRID) -> bytes:
     """bCNC ``Probe.save``: ``xmin xmax xn``, ``ymin ymax yn``, ``zmin zmax feed``, two blank lines, then per row
     of y the points ``x y z`` (``%g``) and a blank line. Heights: work Z of the probed surface."""
-    xs, ys = _grid()
-    out = [f"{X0:g} {X1:g} {NX}\n", f"{Y0:g} {Y1:g} {NY}\n", f"{-1.0:g} {3.0:g} {10.0:g}\n", "\n\n"]
+    xs, ys = _grid(g)
+    x0, x1, nx, y0, y1, ny = g
+    out = [f"{x0:g} {x1:g} {nx}\n", f"{y0:g} {y1:g} {ny}\n", f"{-1.0:g} {3.0:g} {10.0:g}\n", "\n\n"]
     for y in ys:
         for x in xs:
             out.append(f"{x:g} {y:g} {round(f(x, y), 6):g}\n")
@@ -66,24 +73,26 @@ def bcnc(f: Callable[[float, float], float]) -> bytes:
     return "".join(out).encode()
 
 
-def candle(f: Callable[[float, float], float]) -> bytes:
+def candle(f: Callable[[float, float], float], g: Grid = GRID) -> bytes:
     """Candle ``saveHeightMap`` (v3, CR LF): the border (spin boxes, 3 decimals), the origin, the grid, the
     interpolation, then rows of ``z;z;...`` relative to the first probe, made at the origin (X0 Y0)."""
-    xs, ys = _grid()
+    xs, ys = _grid(g)
+    x0, x1, nx, y0, y1, ny = g
     z0 = f(0.0, 0.0)
-    lines = ["candle map v3", f"{X0:.3f};{Y0:.3f};{X1 - X0:.3f};{Y1 - Y0:.3f}", "0.000;0.000",
-             f"{NX};{NY};-1.000;3.000;10", f"0;{4 * NX};{4 * NY}"]
+    lines = ["candle map v3", f"{x0:.3f};{y0:.3f};{x1 - x0:.3f};{y1 - y0:.3f}", "0.000;0.000",
+             f"{nx};{ny};-1.000;3.000;10", f"0;{4 * nx};{4 * ny}"]
     for y in ys:
         lines.append(";".join(_js(round(f(x, y) - z0, 6)) for x in xs))
     return ("\r\n".join(lines) + "\r\n").encode()
 
 
-def opencncpilot(f: Callable[[float, float], float]) -> bytes:
+def opencncpilot(f: Callable[[float, float], float], g: Grid = GRID) -> bytes:
     """OpenCNCPilot ``HeightMap.Save``: .NET's indented XmlWriter (UTF-8 with BOM, CR LF), one ``point`` per node,
     x outer, y inner. Heights: work Z of the probed surface."""
-    xs, ys = _grid()
+    xs, ys = _grid(g)
+    x0, x1, nx, y0, y1, ny = g
     lines = ['<?xml version="1.0" encoding="utf-8"?>',
-             f'<heightmap MinX="{_js(X0)}" MinY="{_js(Y0)}" MaxX="{_js(X1)}" MaxY="{_js(Y1)}" SizeX="{NX}" SizeY="{NY}">']
+             f'<heightmap MinX="{_js(x0)}" MinY="{_js(y0)}" MaxX="{_js(x1)}" MaxY="{_js(y1)}" SizeX="{nx}" SizeY="{ny}">']
     for i, x in enumerate(xs):
         for j, y in enumerate(ys):
             lines.append(f'  <point X="{i}" Y="{j}">{_js(round(f(x, y), 6))}</point>')
@@ -91,10 +100,10 @@ def opencncpilot(f: Callable[[float, float], float]) -> bytes:
     return b"\xef\xbb\xbf" + "\r\n".join(lines).encode()
 
 
-def cncjs(f: Callable[[float, float], float]) -> bytes:
+def cncjs(f: Callable[[float, float], float], g: Grid = GRID) -> bytes:
     """cncjs-kt-ext's probe file (``__last_Z_probe.txt``): ``x y z 0 0 0 0 0 0`` per probe in probing order, the
     first at (xmin, ymin) where the extension zeroes Z (``G10 L20 P1 Z0``), then rows of y, x rising."""
-    xs, ys = _grid()
+    xs, ys = _grid(g)
     z0 = f(xs[0], ys[0])
     out = []
     for y in ys:
@@ -103,7 +112,7 @@ def cncjs(f: Callable[[float, float], float]) -> bytes:
     return "".join(out).encode()
 
 
-WRITERS: dict[str, tuple[str, Callable[[Callable[[float, float], float]], bytes]]] = {
+WRITERS: dict[str, tuple[str, Callable[..., bytes]]] = {
     "bcnc": (".probe", bcnc), "candle": (".map", candle), "opencncpilot": (".hmap", opencncpilot),
     "cncjs": ("_probe.txt", cncjs),
 }
