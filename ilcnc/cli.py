@@ -537,8 +537,8 @@ def _level(program: Path, points: Path, out: Path, as_json: bool) -> None:
     t.add_row("moves levelled / kept", f"{res.moves_levelled} / {res.moves_kept}")
     t.add_row("dz min / max (µm)", f"{res.dz_min_mm * 1e3:+.1f} / {res.dz_max_mm * 1e3:+.1f}")
     t.add_row("end points outside the map", f"{res.ends_outside} (farthest {res.outside_max_mm:.3f} mm; edge height held)")
-    t.add_row("straight feeds split", f"{res.lines_split} ({res.points_inserted} lines inserted,"
-              f" {len(res.split_refused)} refused)")
+    t.add_row("straight feeds / arcs split", f"{res.lines_split} / {res.arcs_split} ({res.points_inserted} lines"
+              f" inserted, {len(res.split_refused)} not split)")
     t.add_row("straight feeds: largest departure (µm)", f"{res.line_error_max_mm * 1e3:.2f}")
     t.add_row("arcs kept as arcs / over tolerance", f"{res.arcs} / {res.arcs_over_tolerance}")
     t.add_row("arcs: largest departure (µm)", f"{res.arc_error_max_mm * 1e3:.2f}")

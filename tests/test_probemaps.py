@@ -10,6 +10,8 @@ from __future__ import annotations
 import importlib.util
 import math
 import re
+import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -75,10 +77,12 @@ def test_points_csv_is_no_height_map() -> None:
     assert detect_height_map(REPO / "samples" / "own" / "seed002_circle_probe.csv") is None
 
 
-def _strip(line: str) -> str:
-    """A line without its Z word and the levelling marker: what must stay byte for byte."""
+def _strip(line: str, centre: bool = False) -> str:
+    """A line without its Z word (and I/J words: ``centre``) and the levelling marker: what must stay byte for
+    byte."""
     line = re.sub(r" \(ilcnc: levelled with \S+ sha256:[0-9a-f]{16}\)", "", line)
-    return re.sub(r"\s*Z[-+]?(\d+\.?\d*|\.\d+)", "", line, flags=re.IGNORECASE)
+    letters = "ZIJ" if centre else "Z"
+    return re.sub(rf"\s*[{letters}][-+]?(\d+\.?\d*|\.\d+)", "", line, flags=re.IGNORECASE)
 
 
 def _check_levelled(src: Path, out: Path, map_path: Path, z_tol_mm: float) -> tuple:
@@ -89,10 +93,12 @@ def _check_levelled(src: Path, out: Path, map_path: Path, z_tol_mm: float) -> tu
     hmap = read_height_map(map_path)
     lines_in = src.read_text(encoding="latin-1").splitlines()
     lines_out = out.read_text(encoding="latin-1").splitlines()
-    kept = [ln for ln in lines_out if LEVEL_MARKER not in ln]
+    kept = [(ln, k > 0 and LEVEL_MARKER in lines_out[k - 1]) for k, ln in enumerate(lines_out)
+            if LEVEL_MARKER not in ln]
     assert len(kept) == len(lines_in)
-    for a, b in zip(lines_in, kept, strict=True):
-        assert _strip(a) == _strip(b), (a, b)
+    for a, (b, split) in zip(lines_in, kept, strict=True):
+        # a split arc's own I/J are relative to its new start (its centre is checked below)
+        assert _strip(a, centre=split) == _strip(b, centre=split), (a, b)
     # map the output's moves to the original's: inserted moves are on marked lines
     marked = np.array([LEVEL_MARKER in lev.line_text(int(ln))[1] for ln in lev.moves.line])
     own = np.flatnonzero(~marked)
@@ -109,16 +115,27 @@ def _check_levelled(src: Path, out: Path, map_path: Path, z_tol_mm: float) -> tu
     assert np.max(np.abs(got - want)) <= z_tol_mm
     np.testing.assert_array_equal(lev.moves.end_mm[own, :2], orig.moves.end_mm[:, :2])
     np.testing.assert_array_equal(lev.moves.offset_mm[own], orig.moves.offset_mm)
-    # an inserted point lies on its original straight feed, at the surface height there
+    # arcs keep their centres (a split arc's I/J are written to the numbers' rounding: 0.05 µm per axis)
+    np.testing.assert_allclose(lev.moves.center_mm[own], orig.moves.center_mm, atol=1e-4, equal_nan=True)
+    # an inserted point lies on its original straight feed or arc, at the surface height there
     for i in np.flatnonzero(marked).tolist():
         k = int(np.searchsorted(own, i))  # the original move it splits
-        assert int(orig.moves.kind[k]) == MOVE_LINE
         s0, e0 = orig.moves.start_mm[k], orig.moves.end_mm[k]
         pt = lev.moves.end_mm[i]
-        d = e0[:2] - s0[:2]
-        f = float(np.dot(pt[:2] - s0[:2], d) / np.dot(d, d))
+        if int(orig.moves.kind[k]) == MOVE_LINE:
+            d = e0[:2] - s0[:2]
+            f = float(np.dot(pt[:2] - s0[:2], d) / np.dot(d, d))
+            off_path = np.hypot(*(s0[:2] + f * d - pt[:2]))
+        else:
+            assert int(orig.moves.kind[k]) >= MOVE_ARC_CW and int(lev.moves.kind[i]) == int(orig.moves.kind[k])
+            c = orig.moves.center_mm[k, :2]
+            a0, a1, ap = (math.atan2(*(q[1::-1] - c[::-1])) for q in (s0[:2], e0[:2], pt[:2]))
+            ccw = int(orig.moves.kind[k]) != MOVE_ARC_CW
+            sweep = ((a1 - a0) if ccw else (a0 - a1)) % (2 * math.pi) or 2 * math.pi
+            f = (((ap - a0) if ccw else (a0 - ap)) % (2 * math.pi)) / sweep
+            off_path = abs(np.hypot(*(pt[:2] - c)) - np.hypot(*(s0[:2] - c)))
         assert 0.0 < f < 1.0
-        assert np.hypot(*(s0[:2] + f * d - pt[:2])) < 1e-4  # insert.py writes points within 0.05 µm per axis
+        assert off_path < 1e-4  # inserted points are written within 0.05 µm per axis
         q = pt - lev.moves.offset_mm[i]
         hz = float(surface_height_mm(hmap, np.array([q[0]]), np.array([q[1]]))[0][0])
         # the path's Z there plus the surface height; the fraction f carries the XY rounding (<= 0.05 µm) into Z
@@ -139,10 +156,12 @@ def test_level_circle_inch_in_each_format(writer: str, tmp_path: Path) -> None:
     _check_levelled(CIRCLE, out, mp, z_tol_mm=0.5e-5 * 25.4 + 1e-9)
     text = out.read_text()
     assert text.splitlines()[0].startswith("G17 G20 G90 G94 G54 (ilcnc: levelled with warp")
-    # arcs stay arcs: the four G02 lines keep their I/J words and get a Z
-    arcs = [ln for ln in text.splitlines() if re.match(r"^(G02 )?X.* I", ln)]
-    assert len(arcs) == 4 and all("Z" in ln for ln in arcs)
-    assert res.arcs == 4 and res.ends_outside == 0
+    # arcs stay arcs: the four G02 lines keep their I/J words and get a Z; where the surface bends along them
+    # more than 1 µm they are split into arcs on the same circle, each within it
+    arcs = [ln for ln in text.splitlines() if re.match(r"^(G0?2 )?X.* I", ln)]
+    assert len(arcs) == 4 + res.points_inserted and all("Z" in ln for ln in arcs)
+    assert res.arcs == len(arcs) and res.ends_outside == 0
+    assert res.arcs_over_tolerance == 0 and res.arc_error_max_mm <= res.tolerance_mm
 
 
 def test_level_gates_keeps_arcs_comments_and_splits_only_where_needed(tmp_path: Path) -> None:
@@ -222,3 +241,22 @@ def test_height_map_refuses_learning_options(tmp_path: Path) -> None:
     assert res.exit_code == 2 and "--state does not go with a probe height map" in cli_output(res)
     res = runner.invoke(app, ["learn", str(CIRCLE), "--out", str(tmp_path / "o.gcode")])
     assert res.exit_code == 2 and "--profile is required" in cli_output(res)
+
+
+def test_arcs_on_a_tilted_plane_are_split_into_arcs(tmp_path: Path) -> None:
+    """A tilted plane is a cosine along a circle: a helix over a quarter circle of 12.7 mm departs from it by
+    r * slope * (about 0.4) ~ 13 µm; each halving of the sweep divides that by about 4, so 4 pieces (3 inserted
+    arcs per quarter circle) bring it below 1 µm."""
+    mp = tmp_path / "tilt.probe"
+    mp.write_bytes(BENCH.bcnc(BENCH.tilt, CIRCLE_GRID))
+    out = tmp_path / "levelled.gcode"
+    res = level_program(CIRCLE, mp, out)
+    assert res.arcs_split == 4 and res.points_inserted == 12 and res.arcs == 16
+    assert res.arcs_over_tolerance == 0 and res.arc_error_max_mm <= res.tolerance_mm
+    _check_levelled(CIRCLE, out, mp, z_tol_mm=0.5e-5 * 25.4 + 1e-9)
+    if shutil.which("rs274") is None:
+        print("rs274 (LinuxCNC's interpreter) is not installed: LinuxCNC's acceptance of the split arcs not checked")
+        return
+    run = subprocess.run(["rs274", "-g", str(out)], capture_output=True, text=True, timeout=60)
+    assert "error" not in (run.stderr + run.stdout).lower().replace("no percent sign or program end", "")
+    assert run.stdout.count("ARC_FEED(") == 16

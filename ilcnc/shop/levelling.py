@@ -4,8 +4,10 @@ Every move's end point in the probed region gets the surface height there (the m
 its height at the sender's zero point, docs/probemaps.md), so the tool keeps its programmed depth below a
 warped or tilted stock top. What the senders' users miss, kept:
 
-* arcs stay arcs: an arc whose ends get different heights becomes a helix (G2/G3 with Z); how far a helix
-  departs from the surface between its ends is reported (arcs are not split);
+* arcs stay arcs: an arc whose ends get different heights becomes a helix (G2/G3 with Z); one whose helix
+  departs from the surface by more than :data:`LEVEL_TOLERANCE_MM` is split into shorter arcs on the same
+  circle (:mod:`ilcnc.program.arcsplit`) until each piece's helix stays within it; the largest departure is
+  reported;
 * a straight feed is split only where the surface bends along it by more than :data:`LEVEL_TOLERANCE_MM`
   (the inserted lines are marked ``ilcnc level`` as refinement marks its own); rapids are never split;
 * every other word, comment and M-code stays; numbers keep their spelling and at least their decimals;
@@ -30,6 +32,7 @@ from ilcnc.contour.surface import arc_height_error_mm, line_split_fractions, sur
 from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes, same_file, write_atomic
 from ilcnc.program import read_program
+from ilcnc.program.arcsplit import split_arcs
 from ilcnc.program.insert import insert_points, required_decimals, reread
 from ilcnc.program.model import (
     FLAG_HOME,
@@ -44,7 +47,7 @@ from ilcnc.program.model import (
 )
 from ilcnc.program.rewrite import apply_move_ends
 
-__all__ = ["LEVEL_MARKER", "LEVEL_TOLERANCE_MM", "LevelResult", "find_level_stamp", "level_program"]
+__all__ = ["LEVEL_MARKER", "LEVEL_TOLERANCE_MM", "MAX_ARC_PIECES", "LevelResult", "find_level_stamp", "level_program"]
 
 #: Largest height departure of a straight feed piece from the surface between its levelled ends, mm.
 LEVEL_TOLERANCE_MM = 0.001
@@ -75,6 +78,7 @@ class LevelResult:
     dz_max_mm: float
     lines_split: int
     points_inserted: int
+    arcs_split: int = 0
     split_refused: list[tuple[int, str]] = field(default_factory=list)
     line_error_max_mm: float = 0.0
     arcs: int = 0
@@ -92,7 +96,7 @@ class LevelResult:
             "tolerance_mm": self.tolerance_mm, "moves_levelled": self.moves_levelled, "moves_kept": self.moves_kept,
             "ends_outside_map": self.ends_outside, "outside_max_mm": self.outside_max_mm,
             "dz_min_mm": self.dz_min_mm, "dz_max_mm": self.dz_max_mm,
-            "lines_split": self.lines_split, "points_inserted": self.points_inserted,
+            "lines_split": self.lines_split, "arcs_split": self.arcs_split, "points_inserted": self.points_inserted,
             "split_refused": [{"line": ln, "reason": r} for ln, r in self.split_refused],
             "line_error_max_mm": self.line_error_max_mm, "arcs": self.arcs,
             "arcs_over_tolerance": self.arcs_over_tolerance, "arc_error_max_mm": self.arc_error_max_mm,
@@ -152,6 +156,46 @@ def _sweep(kind: int, a0: float, a1: float, turns: int) -> float:
         s = two_pi if kind == MOVE_ARC_CCW else -two_pi
     extra = max(int(turns), 1) - 1
     return s + math.copysign(two_pi * extra, s)
+
+
+def _arc_geometry(program: Program, i: int) -> tuple[NDArray[np.float64], float, float, float]:
+    """(centre xy in program coordinates, radius, start angle, signed sweep) of arc move ``i``."""
+    mv = program.moves
+    c = mv.center_mm[i, :2] - mv.offset_mm[i, :2]
+    s = mv.start_mm[i, :2] - mv.offset_mm[i, :2]
+    e = mv.end_mm[i, :2] - mv.offset_mm[i, :2]
+    a0 = math.atan2(s[1] - c[1], s[0] - c[0])
+    a1 = math.atan2(e[1] - c[1], e[0] - c[0])
+    return c, math.hypot(*(s - c)), a0, _sweep(int(mv.kind[i]), a0, a1, int(mv.turns[i]))
+
+
+def _arc_pieces_error(hmap: HeightMap, c: NDArray[np.float64], r: float, a0: float, sweep: float, n: int) -> float:
+    """Largest departure of ``n`` equal helix pieces of an arc, each between the surface heights at its ends."""
+    ang = a0 + sweep * np.arange(n + 1) / n
+    h, _ = surface_height_mm(hmap, c[0] + r * np.cos(ang), c[1] + r * np.sin(ang))
+    return max(arc_height_error_mm(hmap, c, r, float(ang[k]), sweep / n, float(h[k]), float(h[k + 1]))
+               for k in range(n))
+
+
+#: Most pieces an arc is split into (a limit to the lines added; an arc that needs more is reported).
+MAX_ARC_PIECES = 64
+
+
+def _plan_arc_splits(program: Program, hmap: HeightMap, ok: NDArray[np.bool_], tol: float
+                     ) -> dict[int, list[float]]:
+    """Arcs whose helix departs from the surface by more than ``tol``: equal pieces, doubled until each fits."""
+    mv = program.moves
+    arcs = np.flatnonzero(ok & (mv.kind >= MOVE_ARC_CW) & np.concatenate([[False], ok[:-1]]))
+    out: dict[int, list[float]] = {}
+    for i in arcs.tolist():
+        c, r, a0, sweep = _arc_geometry(program, i)
+        if _arc_pieces_error(hmap, c, r, a0, sweep, 1) <= tol:
+            continue
+        n = 2
+        while n < MAX_ARC_PIECES and _arc_pieces_error(hmap, c, r, a0, sweep, n) > tol:
+            n *= 2
+        out[i] = [k / n for k in range(1, n)]
+    return out
 
 
 def _plan_splits(program: Program, hmap: HeightMap, ok: NDArray[np.bool_], tol: float) -> dict[int, list[float]]:
@@ -235,15 +279,29 @@ def level_program(program_path: str | Path, map_path: str | Path, out: str | Pat
                          " along Z without changing its radius; ilcnc levels G17 (XY) arcs only")
     splits = _plan_splits(program, hmap, ok, tolerance_mm)
     refused: list[tuple[int, str]] = []
+    n_line_refused = 0
     points_inserted = 0
     notes: list[str] = []
     if splits:
         ins = insert_points(program, splits, min_decimals=min_dec, marker=LEVEL_MARKER)
         refused = [(s.line, s.reason) for s in ins.skipped]
+        n_line_refused = len(refused)
         points_inserted = ins.n_inserted
         notes.extend(ins.notes)
         if ins.n_inserted:
             program = reread(program, ins.text)
+            program.require_complete()
+            ok = _eligible(program)
+            mv = program.moves
+    arc_splits = _plan_arc_splits(program, hmap, ok, tolerance_mm)
+    arcs_split = 0
+    if arc_splits:
+        asr = split_arcs(program, arc_splits, min_decimals=min_dec, marker=LEVEL_MARKER)
+        refused += [(sk.line, sk.reason) for sk in asr.skipped]
+        arcs_split = len(arc_splits) - len(asr.skipped)
+        points_inserted += asr.n_inserted
+        if asr.n_inserted:
+            program = reread(program, asr.text)
             program.require_complete()
             ok = _eligible(program)
             mv = program.moves
@@ -268,13 +326,7 @@ def level_program(program_path: str | Path, map_path: str | Path, out: str | Pat
     arcs = np.flatnonzero(ok & (mv.kind >= MOVE_ARC_CW) & np.concatenate([[False], ok[:-1]]))
     arc_err = np.zeros(arcs.size)
     for n, i in enumerate(arcs.tolist()):
-        c = mv.center_mm[i, :2] - mv.offset_mm[i, :2]
-        s = mv.start_mm[i, :2] - mv.offset_mm[i, :2]
-        e = pc[i, :2]
-        r = math.hypot(*(s - c))
-        a0 = math.atan2(s[1] - c[1], s[0] - c[0])
-        a1 = math.atan2(e[1] - c[1], e[0] - c[0])
-        sweep = _sweep(int(mv.kind[i]), a0, a1, int(mv.turns[i]))
+        c, r, a0, sweep = _arc_geometry(program, i)
         arc_err[n] = arc_height_error_mm(hmap, c, r, a0, sweep, float(dz[i - 1] + ref_h), float(dz[i] + ref_h))
     text, _edits = apply_move_ends(program, ends, min_decimals=min_dec)
     note = f"ilcnc: levelled with {map_p.name.replace(' ', '_')} sha256:{hmap.sha256[:16]}"
@@ -283,13 +335,14 @@ def level_program(program_path: str | Path, map_path: str | Path, out: str | Pat
     over = int(np.count_nonzero(arc_err > tolerance_mm))
     if over:
         notes.append(f"{over} arcs depart from the surface by more than {tolerance_mm * 1e3:g} µm between their"
-                     f" levelled ends (largest {arc_err.max() * 1e3:.1f} µm): they stay arcs (helices)")
+                     f" levelled ends (largest {arc_err.max() * 1e3:.1f} µm): arcs that could not be split (above) or"
+                     f" would need more than {MAX_ARC_PIECES} pieces")
     return LevelResult(
         program=prog_p, output=written, map_path=map_p, map_format=hmap.fmt, grid=hmap.shape,
         reference_xy_mm=hmap.reference_xy_mm, reference_height_mm=ref_h, tolerance_mm=tolerance_mm,
         moves_levelled=int(np.count_nonzero(ok)), moves_kept=int(np.count_nonzero(~ok)),
         ends_outside=int(far.size), outside_max_mm=float(far.max()) if far.size else 0.0,
         dz_min_mm=float(dz[ok].min()) if ok.any() else 0.0, dz_max_mm=float(dz[ok].max()) if ok.any() else 0.0,
-        lines_split=len(splits) - len(refused), points_inserted=points_inserted, split_refused=refused,
+        lines_split=len(splits) - n_line_refused, arcs_split=arcs_split, points_inserted=points_inserted, split_refused=refused,
         line_error_max_mm=_line_errors(program, hmap, ok), arcs=int(arcs.size), arcs_over_tolerance=over,
         arc_error_max_mm=float(arc_err.max()) if arc_err.size else 0.0, notes=notes)
