@@ -220,6 +220,9 @@ def test_second_application_is_refused(tmp_path: Path) -> None:
     ("short.probe", "0 10 2\n0 10 2\n-1 3 10\n\n\n0 0 0\n10 0 0\n\n0 10 0\n", 9, "3 points for a 2 x 2 grid"),
     ("text.hmap", '<?xml version="1.0"?>\n<heightmap MinX="0" MinY="0" MaxX="10" MaxY="10" SizeX="2" SizeY="2">\n'
      '<point X="0" Y="0">0</point>\n<point X="1" Y="0">abc</point>\n</heightmap>\n', 4, "'abc' is not a number"),
+    ("huge.probe", "0 10 1000000000\n0 10 1000000000\n-1 3 10\n\n\n0 0 0\n", 6, "1 points for a 1000000000 x"),
+    ("huge.hmap", '<heightmap MinX="0" MinY="0" MaxX="10" MaxY="10" SizeX="100000" SizeY="100000">\n'
+     '<point X="0" Y="0">0</point>\n</heightmap>\n', None, "9999999999 of 10000000000 grid points not probed"),
     ("holes_probe.txt", "0 0 0 0 0 0 0 0 0\n10 0 0.1 0 0 0 0 0 0\n0 10 0.2 0 0 0 0 0 0\n", None, "no full grid"),
 ])
 def test_malformed_map_gives_one_line(name: str, content: str, line: int | None, problem: str, tmp_path: Path) -> None:

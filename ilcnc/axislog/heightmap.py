@@ -196,13 +196,13 @@ def _read_bcnc(p: Path, text: str) -> _Grid:
         head.append([_num(p, ln, c, f"header {what}") for c in cells])
     nx = _count(p, lines[0][0], lines[0][1].split()[2], "xn")
     ny = _count(p, lines[1][0], lines[1][1].split()[2], "yn")
-    xs = _axis(p, lines[0][0], head[0][0], head[0][1], nx, "x")
-    ys = _axis(p, lines[1][0], head[1][0], head[1][1], ny, "y")
     body = lines[3:]
     if len(body) != nx * ny:
         where = body[-1][0] if body else lines[2][0]
         raise InputError(p, where, f"bCNC probe file: {len(body)} points for a {nx} x {ny} grid (expected {nx * ny}):"
                          " a ragged or truncated grid")
+    xs = _axis(p, lines[0][0], head[0][0], head[0][1], nx, "x")
+    ys = _axis(p, lines[1][0], head[1][0], head[1][1], ny, "y")
     z = np.empty((ny, nx))
     step = (xs[1] - xs[0], ys[1] - ys[0])
     for k, (ln, t) in enumerate(body):
@@ -241,12 +241,15 @@ def _read_candle(p: Path, text: str) -> _Grid:
     nx = _count(p, grid_ln, grid_t.split(";")[0], "grid points in X")
     ny = _count(p, grid_ln, grid_t.split(";")[1], "grid points in Y")
     fields(4, 3, "interpolation")
-    xs = _axis(p, lines[1][0], bx, bx + bw, nx, "border x")
-    ys = _axis(p, lines[1][0], by, by + bh, ny, "border y")
     body = lines[5:]
     if len(body) != ny:
         where = body[-1][0] if body else lines[4][0]
         raise InputError(p, where, f"Candle map: {len(body)} rows for {ny} grid points in Y: a ragged or truncated grid")
+    if len(body[0][1].split(";")) != nx:
+        raise InputError(p, body[0][0], f"Candle map row 1: {len(body[0][1].split(';'))} values for {nx} grid points"
+                         " in X (ragged grid)")
+    xs = _axis(p, lines[1][0], bx, bx + bw, nx, "border x")
+    ys = _axis(p, lines[1][0], by, by + bh, ny, "border y")
     z = np.empty((ny, nx))
     for j, (ln, t) in enumerate(body):
         cells = t.split(";")
@@ -299,10 +302,8 @@ def _read_opencncpilot(p: Path, raw: bytes) -> _Grid:
         vals[key] = _num(p, hl, head[key], key)
     nx = _count(p, hl, head["SizeX"], "SizeX")
     ny = _count(p, hl, head["SizeY"], "SizeY")
-    xs = _axis(p, hl, vals["MinX"], vals["MaxX"], nx, "MinX/MaxX")
-    ys = _axis(p, hl, vals["MinY"], vals["MaxY"], ny, "MinY/MaxY")
-    z = np.full((ny, nx), math.nan)
     seen: dict[tuple[int, int], int] = {}
+    height: dict[tuple[int, int], float] = {}
     for ln, sx, sy, body in points:
         i = _num(p, ln, sx, "point X index")
         j = _num(p, ln, sy, "point Y index")
@@ -312,12 +313,16 @@ def _read_opencncpilot(p: Path, raw: bytes) -> _Grid:
         if key in seen:
             raise InputError(p, ln, f"point ({key[0]}, {key[1]}) given twice (first on line {seen[key]})")
         seen[key] = ln
-        z[key[1], key[0]] = _num(p, ln, "".join(body), f"height of point ({key[0]}, {key[1]})")
-    missing = np.argwhere(np.isnan(z))
-    if missing.size:
-        j, i = (int(v) for v in missing[0])
-        raise InputError(p, None, f"OpenCNCPilot height map: {missing.shape[0]} of {nx * ny} grid points not probed"
-                         f" (first: X={i} Y={j}); finish the probing in OpenCNCPilot")
+        height[key] = _num(p, ln, "".join(body), f"height of point ({key[0]}, {key[1]})")
+    if len(height) < nx * ny:  # before any array of the grid's size: a damaged SizeX must not take the memory
+        first = next(((i, j) for i in range(nx) for j in range(ny) if (i, j) not in height), (0, 0))
+        raise InputError(p, None, f"OpenCNCPilot height map: {nx * ny - len(height)} of {nx * ny} grid points not"
+                         f" probed (first: X={first[0]} Y={first[1]}); finish the probing in OpenCNCPilot")
+    xs = _axis(p, hl, vals["MinX"], vals["MaxX"], nx, "MinX/MaxX")
+    ys = _axis(p, hl, vals["MinY"], vals["MaxY"], ny, "MinY/MaxY")
+    z = np.empty((ny, nx))
+    for (i, j), v in height.items():
+        z[j, i] = v
     return xs, ys, z, None
 
 

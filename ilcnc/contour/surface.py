@@ -72,19 +72,20 @@ def _cell_breaks(hmap: HeightMap, p0: NDArray[np.float64], d: NDArray[np.float64
     return np.unique(np.array(ts))
 
 
-def _piece_error(h0: float, hm: float, h1: float, c0: float, c1: float) -> float:
-    """Largest |q| on a piece where q = h - chord is quadratic: q's values at the piece's ends and middle
+def _pieces_error(h0: NDArray[np.float64], hm: NDArray[np.float64], h1: NDArray[np.float64],
+                  c0: NDArray[np.float64], c1: NDArray[np.float64]) -> float:
+    """Largest |q| over pieces where q = h - chord is quadratic on each: q's values at a piece's ends and middle
     (``h0 - c0``, ``hm - (c0 + c1) / 2``, ``h1 - c1``) fix it; the extremum is at an end or at the vertex."""
     q0, qm, q1 = h0 - c0, hm - 0.5 * (c0 + c1), h1 - c1
     # q(s) = q0 + b s + a s^2 on s in [0, 1]
     a = 2.0 * (q0 + q1 - 2.0 * qm)
     b = q1 - q0 - a
-    best = max(abs(q0), abs(q1))
-    if abs(a) > 1e-300:
-        s = -b / (2.0 * a)
-        if 0.0 < s < 1.0:
-            best = max(best, abs(q0 + b * s + a * s * s))
-    return best
+    best = np.maximum(np.abs(q0), np.abs(q1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(np.abs(a) > 1e-300, -b / (2.0 * a), -1.0)
+    inside = (s > 0.0) & (s < 1.0)
+    best = np.where(inside, np.maximum(best, np.abs(q0 + b * s + a * s * s)), best)
+    return float(best.max()) if best.size else 0.0
 
 
 def line_split_fractions(hmap: HeightMap, start_xy_mm: NDArray[np.float64], end_xy_mm: NDArray[np.float64],
@@ -120,15 +121,12 @@ def line_split_fractions(hmap: HeightMap, start_xy_mm: NDArray[np.float64], end_
     hm = _h(hmap, p0, d, mids)
 
     def err(a: int, b: int) -> float:
-        """Departure of the straight piece from break a to break b."""
+        """Departure of the straight piece from break a to break b (every cell piece between, at once)."""
         ta, tb = breaks[a], breaks[b]
-        ha, hb_ = hb[a], hb[b]
-        worst = 0.0
-        for k in range(a, b):
-            c0 = ha + (hb_ - ha) * (breaks[k] - ta) / (tb - ta)
-            c1 = ha + (hb_ - ha) * (breaks[k + 1] - ta) / (tb - ta)
-            worst = max(worst, _piece_error(hb[k], hm[k], hb[k + 1], c0, c1))
-        return worst
+        slope = (hb[b] - hb[a]) / (tb - ta)
+        c0 = hb[a] + slope * (breaks[a:b] - ta)
+        c1 = hb[a] + slope * (breaks[a + 1:b + 1] - ta)
+        return _pieces_error(hb[a:b], hm[a:b], hb[a + 1:b + 1], c0, c1)
 
     n = breaks.size - 1
     whole = err(0, n)
@@ -137,9 +135,20 @@ def line_split_fractions(hmap: HeightMap, start_xy_mm: NDArray[np.float64], end_
     out: list[float] = []
     a = 0
     while a < n:
-        b = a + 1
-        while b < n and err(a, b + 1) <= tol_mm:
-            b += 1
+        # the farthest break b with err(a, b) within the tolerance: galloping, then bisection (a piece's departure
+        # grows with its length; O(log n) evaluations instead of one per break)
+        good, step = a + 1, 1
+        while good + step <= n and err(a, good + step) <= tol_mm:
+            good += step
+            step *= 2
+        lo, hi = good, min(good + step, n + 1)
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if err(a, mid) <= tol_mm:
+                lo = mid
+            else:
+                hi = mid
+        b = lo
         if b == a + 1 and err(a, b) > tol_mm:
             # one cell: the piece's departure is its quadratic's, |a| (t1-t0)^2 / 4 over the cell piece; halving
             # a piece quarters it
