@@ -263,3 +263,17 @@ def test_arcs_on_a_tilted_plane_are_split_into_arcs(tmp_path: Path) -> None:
     run = subprocess.run(["rs274", "-g", str(out)], capture_output=True, text=True, timeout=60)
     assert "error" not in (run.stderr + run.stdout).lower().replace("no percent sign or program end", "")
     assert run.stdout.count("ARC_FEED(") == 16
+
+
+def test_a_program_with_splines_is_refused_in_one_line(tmp_path: Path) -> None:
+    """systems.ngc (LinuxCNC) draws its letters with G5.1 splines, on which LinuxCNC takes no Z word."""
+    prog = REPO / "samples" / "third_party" / "gcode" / "systems.ngc"
+    mp = tmp_path / "tilt.probe"
+    mp.write_bytes(BENCH.bcnc(BENCH.tilt, (-1.0, 3.0, 5, -1.0, 1.0, 3)))
+    out = tmp_path / "o.ngc"
+    res = runner.invoke(app, ["learn", str(prog), "--points", str(mp), "--out", str(out)])
+    assert res.exit_code == 1
+    assert cli_output(res).strip() == (f"error: {prog}:15: a spline (G5, G5.1, G5.2) or another move the reader derives:"
+                                       " its Z cannot follow the map (LinuxCNC takes no Z word on a spline); have the"
+                                       " CAM write it as arcs or lines")
+    assert not out.exists()

@@ -35,6 +35,7 @@ from ilcnc.program import read_program
 from ilcnc.program.arcsplit import split_arcs
 from ilcnc.program.insert import insert_points, required_decimals, reread
 from ilcnc.program.model import (
+    FLAG_DERIVED,
     FLAG_HOME,
     FLAG_MACHINE,
     FLAG_POLAR,
@@ -251,7 +252,8 @@ def level_program(program_path: str | Path, map_path: str | Path, out: str | Pat
     ------
     InputError
         A Klartext program, a program that already carries a height map, an output that is an input, a
-        malformed map, an arc in the XZ or YZ plane in the probed moves, or a word that cannot take its change.
+        malformed map, an arc in the XZ or YZ plane or a spline among the levelled moves, or a word that cannot
+        take its change.
     """
     prog_p, map_p, out_p = Path(program_path), Path(map_path), Path(out)
     for what, p in (("the program", prog_p), ("the height map", map_p)):
@@ -277,6 +279,11 @@ def level_program(program_path: str | Path, map_path: str | Path, out: str | Pat
     if bad.size:
         raise InputError(prog_p, int(mv.line[bad[0]]), "an arc in the XZ or YZ plane: a height map cannot move its ends"
                          " along Z without changing its radius; ilcnc levels G17 (XY) arcs only")
+    derived = np.flatnonzero(ok & ((mv.flags & FLAG_DERIVED) != 0))
+    if derived.size:
+        raise InputError(prog_p, int(mv.line[derived[0]]), "a spline (G5, G5.1, G5.2) or another move the reader"
+                         " derives: its Z cannot follow the map (LinuxCNC takes no Z word on a spline); have the CAM"
+                         " write it as arcs or lines")
     splits = _plan_splits(program, hmap, ok, tolerance_mm)
     refused: list[tuple[int, str]] = []
     n_line_refused = 0
