@@ -277,3 +277,19 @@ def test_a_program_with_splines_is_refused_in_one_line(tmp_path: Path) -> None:
                                        " its Z cannot follow the map (LinuxCNC takes no Z word on a spline); have the"
                                        " CAM write it as arcs or lines")
     assert not out.exists()
+
+
+def test_work_offsets_stay_and_a_change_is_told(tmp_path: Path) -> None:
+    """circle-inch.gcode with its G54 and, before the second circle, a G92 shift of 0.1 inch in X: every offset
+    and every word but Z stays; the map is read in each move's own work coordinates, and the result says so."""
+    text = CIRCLE.read_text(encoding="latin-1")
+    prog = tmp_path / "circle-g92.gcode"
+    prog.write_text(text.replace("G01 Z0.1 F5.", "G01 Z0.1 F5.\nG92 X-0.4\nG01 X-0.5\nG01 Z0.\n"
+                                 "G02 X0. Y0.5 I0.5 J0. F2.5\nG01 Z0.1 F5.\nG92.1", 1), encoding="latin-1")
+    mp = tmp_path / "warp.probe"
+    mp.write_bytes(BENCH.bcnc(BENCH.warp, CIRCLE_GRID))
+    out = tmp_path / "levelled.gcode"
+    res = level_program(prog, mp, out)
+    _check_levelled(prog, out, mp, z_tol_mm=0.5e-5 * 25.4 + 1e-9)
+    assert any(n.startswith("the work offset changes at line 12 ") for n in res.notes), res.notes
+    assert "G92 X-0.4\n" in out.read_text() and "G92.1" in out.read_text()

@@ -5,9 +5,10 @@ rewrites the arc's own I/J (relative to its new start) so that the re-read progr
 circle, with the original helix's Z at each new end. Like :mod:`ilcnc.program.insert` it is careful: an arc is
 split only when its line holds nothing but a block number, ``G2``/``G3``, X/Y/Z, I/J and F words and comments
 (so nothing on it could act twice), it is a G17 arc of at most one turn with its centre relative to its start
-(I/J, not R), in absolute distance mode, not repeated, parametric, polar or under cutter compensation, and it
-is the only move of its line. Every other arc is returned with a one-line reason. Each inserted line carries
-the marker comment; the first carries the line's F word, so the pieces run at the arc's feed.
+(I/J, not R), in absolute distance mode and a feed per minute (not G93), not repeated, parametric, polar or
+under cutter compensation, and it is the only move of its line. Every other arc is returned with a one-line
+reason. Each inserted line carries the marker comment; the first carries the line's F word, so the pieces run
+at the arc's feed.
 
 Written numbers get enough decimals to lie within 0.05 µm of the circle (4 in mm, 6 in inch:
 :func:`ilcnc.program.insert.required_decimals`), at least the source's.
@@ -155,6 +156,8 @@ def _plan(program: Program, i: int, fr: list[float], moves_on_line: int, min_dec
         return "the arc's centre is not given by I and J (R format)"
     if i == 0:
         return "the arc's start is not set by the program"
+    if math.isfinite(float(mv.block_time_s[i])):
+        return "inverse-time feed (G93): a piece would take the whole arc's time"
     _start, body, _eol = program.line_text(int(mv.line[i]))
     words = _line_words(body)
     if isinstance(words, str):

@@ -289,6 +289,12 @@ def level_program(program_path: str | Path, map_path: str | Path, out: str | Pat
     n_line_refused = 0
     points_inserted = 0
     notes: list[str] = []
+    lev = np.flatnonzero(ok)  # the source's lines, before any insertion
+    shift = lev[1:][np.any(mv.offset_mm[lev[1:]] != mv.offset_mm[lev[:-1]], axis=1)] if lev.size > 1 else lev[:0]
+    if shift.size:
+        notes.append(f"the work offset changes at line {int(mv.line[shift[0]])} ({shift.size} times among the levelled"
+                     " moves): the map is read in the coordinates of the work system active at each move, as the"
+                     " senders read the program's numbers")
     if splits:
         ins = insert_points(program, splits, min_decimals=min_dec, marker=LEVEL_MARKER)
         refused = [(s.line, s.reason) for s in ins.skipped]
