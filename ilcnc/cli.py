@@ -11,12 +11,17 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Annotated, Any, NoReturn
+from typing import Annotated
 
 import typer
 
 from ilcnc import __version__
+from ilcnc.cli_linuxcnc import linuxcnc_app
 from ilcnc.cli_options import DebugOption, IlcncApp, debug_on, set_debug
+from ilcnc.cli_output import console as _console
+from ilcnc.cli_output import fail as _fail
+from ilcnc.cli_output import finite as _finite
+from ilcnc.cli_output import table as _table
 from ilcnc.errors import IlcncError, InputError, UsageError
 from ilcnc.units import AXIS_NAMES, LENGTH_UNITS
 from ilcnc.wording import plural
@@ -40,43 +45,6 @@ def _root(
     debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks of errors.")] = False,
 ) -> None:
     set_debug(debug)
-
-
-def _fail(exc: IlcncError) -> NoReturn:
-    if debug_on():
-        raise exc
-    typer.echo(f"error: {exc.format()}", err=True)
-    raise typer.Exit(exc.exit_code)
-
-
-def _finite(option: str, value: float | None, *, lo: float | None = None, open_lo: bool = False,
-            hi: float | None = None, unit: str = "") -> None:
-    """Refuse a numeric option that is NaN, infinite or outside its range (a :class:`UsageError`, exit 2)."""
-    if value is None:
-        return
-    below = lo is not None and (value <= lo if open_lo else value < lo)
-    above = hi is not None and value > hi
-    if not math.isfinite(value) or below or above:
-        rng = "a finite number" + ("" if lo is None else f" {'>' if open_lo else '>='} {lo:g}")
-        rng += "" if hi is None else f"{' and' if lo is not None else ''} <= {hi:g}"
-        raise UsageError(option, f"must be {rng}{' ' + unit if unit else ''}, got {value:g}")
-
-
-def _console():
-    from rich.console import Console
-
-    return Console()
-
-
-def _table(title: str, *, show_header: bool = True) -> Any:
-    """A table that fits a terminal of 80 columns without cutting anything (issue 23 item 7): light rules, one
-    space between columns, and every column added with ``overflow="fold"`` (a long name or number wraps onto
-    the next line instead of ending in '…'). Numbers in full are in ``--json``."""
-    from rich import box
-    from rich.table import Table
-
-    return Table(title=title, show_header=show_header, box=box.SIMPLE_HEAD, padding=(0, 1), collapse_padding=True,
-                 pad_edge=False)
 
 
 #: Help of ``--log-columns`` (learn, simulate --compare).
@@ -413,14 +381,18 @@ def _print_simulation(result, prog, console, log_out: Path | None) -> None:
 @app.command()
 def learn(
     program: Annotated[Path, typer.Argument(help="Part program (the drawing), or an output of the run given by --state.")],
-    profile: Annotated[Path, typer.Option("--profile", help="Machine profile YAML (drives, planner, learning law).")],
     out: Annotated[Path, typer.Option("--out", help="Compensated program to write (.nc/.ngc/.tap/.gcode or .h).")],
+    profile: Annotated[
+        Path | None, typer.Option("--profile", help="Machine profile YAML (drives, planner, learning law); not needed"
+                                  " with a probe height map.")
+    ] = None,
     iterations: Annotated[
         int | None, typer.Option("--iterations", min=1, max=1000, help="Largest number of iterations (profile default).")
     ] = None,
     log: Annotated[Path | None, typer.Option("--log", help="Axis log of the last program run on the machine: one step.")] = None,
     points: Annotated[
-        Path | None, typer.Option("--points", help="Measured points k,dx,dy,dz or x,y,z,dx,dy,dz (mm): one step.")
+        Path | None, typer.Option("--points", help="Measured points k,dx,dy,dz or x,y,z,dx,dy,dz (mm): one step; or a"
+                                  " sender's probe height map (bCNC, Candle, OpenCNCPilot, cncjs): level the program.")
     ] = None,
     state: Annotated[
         Path | None, typer.Option("--state", help="Learning-state directory (default for virtual learning: OUT.state).")
@@ -470,6 +442,18 @@ def learn(
     """
     from ilcnc.shop.workflow import LearnRequest, learn_part
 
+    if points is not None and _is_height_map(points):
+        given = [name for name, v in (("--log", log), ("--state", state), ("--report", report), ("--iterations", iterations),
+                                      ("--refine", refine), ("--force", force), ("--relearn", relearn),
+                                      ("--new-profile", new_profile), ("--stamp", stamp)) if v]
+        if given:
+            _fail(UsageError(given[0], f"does not go with a probe height map ({points}): levelling is one rewrite of"
+                                       " the program, not a learning step"))
+        _level(program, points, out, as_json)
+        return
+    if profile is None:
+        _fail(UsageError("--profile", "is required: the machine profile YAML (only a probe height map given to --points"
+                                      " needs none)"))
     _check_log_options(log_format, log_units, log_columns)
     try:
         _finite("--log-period", log_period, lo=0.0, open_lo=True, hi=1.0, unit="s")  # a sample period: µs to ms
@@ -540,6 +524,41 @@ def report(
                f" {done.files[0].name}, {f.arrows_drawn} of {f.arrows_total} corrected end points drawn; zoom on line"
                f" {done.worst_line} (±{f.zoom_half_mm:.3g} mm, ×{f.zoom_magnify:g})")
     typer.echo(f"wrote {len(done.files)} files in {done.files[0].parent}")
+
+
+def _is_height_map(points: Path) -> bool:
+    """True when --points names a sender's probe height map (by content and suffix) rather than a points CSV."""
+    from ilcnc.axislog.heightmap import detect_height_map
+
+    try:
+        return detect_height_map(points) is not None
+    except IlcncError as exc:
+        _fail(exc)
+
+
+def _level(program: Path, points: Path, out: Path, as_json: bool) -> None:
+    """``learn --points MAP``: level the program on a probe height map (docs/probemaps.md)."""
+    from ilcnc.shop.levelling import level_program
+
+    try:
+        res = level_program(program, points, out)
+    except IlcncError as exc:
+        _fail(exc)
+    if as_json:
+        typer.echo(json.dumps(res.to_json()))
+        return
+    console = _console()
+    t = _table(f"levelled: {program.name} on {points.name} ({res.map_format})", show_header=False)
+    t.add_column("what", overflow="fold")
+    t.add_column("value", overflow="fold")
+    for row in res.rows():
+        t.add_row(*row)
+    console.print(t)
+    for line, reason in res.split_refused[:20]:
+        console.print(f"not split: line {line}: {reason}")
+    for n in res.notes:
+        console.print(n)
+    console.print(f"wrote {res.output}")
 
 
 def _learn_with_progress(learn_part, req, console):
@@ -1057,133 +1076,7 @@ def selftest(
         raise typer.Exit(1)
 
 
-linuxcnc_app = IlcncApp(help="Run programs on LinuxCNC's own motion controller (headless) and log them.",
-                           no_args_is_help=True)
 app.add_typer(linuxcnc_app, name="linuxcnc")
-
-
-@linuxcnc_app.command("run")
-def linuxcnc_run(
-    program: Annotated[Path, typer.Argument(help="G-code program (RS-274NGC) to run.")],
-    log_out: Annotated[Path, typer.Option("--log-out", help="Axis log to write (ilcnc CSV: t_s,k,line,x_ref,...,z_act);"
-                                              " formerly --log.")],
-    config: Annotated[
-        Path | None, typer.Option("--config", help="LinuxCNC configuration folder or INI (default: configs/linuxcnc-sim).")
-    ] = None,
-    raw: Annotated[Path | None, typer.Option("--raw", help="Also keep the raw halsampler output here.")] = None,
-    time_scale: Annotated[int, typer.Option("--time-scale", min=1, max=8, help="Run k times faster (same log).")] = 1,
-    settle_s: Annotated[float, typer.Option("--settle", min=0.0, max=10.0, help="Log this long after motion ends, s.")] = 0.2,
-    timeout_s: Annotated[float, typer.Option(
-        "--timeout", min=1.0, help="Limit of the program's run, s of machine time (at --time-scale k: this / k of wall time)."
-    )] = 600.0,
-    lock_timeout_s: Annotated[float, typer.Option(
-        "--lock-timeout", min=0.0,
-        help="How long to wait for the machine, s, while another run holds ilcnc's LinuxCNC lock or a LinuxCNC"
-             " not started by ilcnc is running (0: do not wait). Says on stderr whom it waits for.",
-    )] = 600.0,
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-    debug: DebugOption = False,
-) -> None:
-    """Run PROGRAM on LinuxCNC headlessly and write its axis log (commanded and actual, per servo cycle).
-
-    The log (--log-out LOG) feeds `ilcnc learn PROGRAM --log LOG`. Runs are serialised by a
-    machine-wide lock (LinuxCNC is one instance per machine): a run that has
-    to wait prints on stderr who holds it (pid, user, program, since when) and
-    waits up to --lock-timeout, then fails naming the holder. A LinuxCNC not
-    started by ilcnc is waited for the same way, never stopped. The leftovers
-    of a crashed run are cleaned up.
-    """
-    from ilcnc.shop.linuxcnc import record_run
-
-    try:
-        res = record_run(program, config, log_out, raw, time_scale=time_scale, settle_s=settle_s, timeout_s=timeout_s,
-                         lock_timeout_s=lock_timeout_s, on_wait=lambda line: typer.echo(line, err=True))
-        alog = res.log
-    except IlcncError as exc:
-        _fail(exc)
-    info = {"program": str(program), "log": str(log_out), "samples": alog.n_samples, "program_s": res.program_s,
-            "time_scale": res.time_scale, "wall_s": res.wall_s, "messages": res.messages}
-    if as_json:
-        typer.echo(json.dumps(info))
-        return
-    typer.echo(f"ran {program.name} on LinuxCNC: {res.program_s:.2f} s of motion at time scale {res.time_scale} "
-               f"in {res.wall_s:.1f} s; wrote {log_out} ({plural(alog.n_samples, 'sample')})")
-    for m in res.messages:
-        typer.echo(f"LinuxCNC: {m}")
-
-
-@linuxcnc_app.command("profile")
-def linuxcnc_profile(
-    ini: Annotated[Path, typer.Argument(help="The machine's LinuxCNC INI (its HAL files are read too).")],
-    out: Annotated[Path | None, typer.Option("--out", help="Profile YAML to write (default: print it).")] = None,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing --out file.")] = False,
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object (with the profile text).")] = False,
-    debug: DebugOption = False,
-) -> None:
-    """Write a machine profile from a LinuxCNC INI: units, limits, servo period, path control, drives.
-
-    Every value carries a comment naming its INI key or HAL line; values the configuration cannot give are
-    ilcnc defaults, marked 'not from the INI' with what to measure (docs/linuxcnc.md 3).
-    """
-    from ilcnc.shop.linuxcnc_profile import profile_from_ini, write_ini_profile
-
-    try:
-        res = profile_from_ini(ini)
-        if out is not None:
-            write_ini_profile(res, out, force=force)
-    except IlcncError as exc:
-        _fail(exc)
-    if as_json:
-        typer.echo(json.dumps({**res.to_json(), "out": str(out) if out else None, "text": res.text}))
-        return
-    if out is None:
-        typer.echo(res.text, nl=False)
-        return
-    typer.echo(f"wrote {out} from {ini.name}: {res.units}, servo period {res.servo_period_s * 1e3:g} ms,"
-               f" path control {res.path_control} (corner tolerance {res.corner_tolerance_mm:g} mm)")
-    t = _table("axes")
-    for col in ("axis", "joints", "velocity mm/min", "accel m/s²", "drive"):
-        t.add_column(col, overflow="fold")
-    for a in res.axes:
-        t.add_row(a.name, " ".join(map(str, a.joints)) or "-", f"{a.max_velocity_mm_s * 60:g}",
-                  f"{a.max_acceleration_mm_s2 / 1000:g}", str(a.drive))
-    _console().print(t)
-    typer.echo("not from the INI (measure or set by hand): " + ", ".join(res.defaults))
-    for n in res.notes:
-        typer.echo(f"note: {n}")
-
-
-@linuxcnc_app.command("prepare")
-def linuxcnc_prepare(
-    program: Annotated[Path, typer.Argument(help="The G-code program to run on the machine.")],
-    profile: Annotated[Path, typer.Option("--profile", help="The machine's profile (corner tolerance, units).")],
-    ini: Annotated[Path | None, typer.Option("--ini", help="The machine's INI: joints, start-up path control,"
-                                             " servo period and log units from it.")] = None,
-    write_hal: Annotated[Path | None, typer.Option("--write-hal", help="Write the HAL lines to this file.")] = None,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing --write-hal file.")] = False,
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-    debug: DebugOption = False,
-) -> None:
-    """Say what a log run of PROGRAM on a LinuxCNC machine needs, before the run.
-
-    The path control per line range and the edits that keep corners within the profile's tolerance (G64 P Q0),
-    the HAL lines that record the axes with halsampler, and the commands that record and learn.
-    """
-    from ilcnc.fileio import write_atomic
-    from ilcnc.shop.linuxcnc_prepare import prepare_run
-
-    try:
-        res = prepare_run(program, profile, ini_path=ini)
-        if write_hal is not None:
-            if write_hal.exists() and not force:
-                raise UsageError("--write-hal", f"{write_hal} exists: choose another file or replace it with --force")
-            write_atomic(write_hal, res.hal, protect=(program, profile, *((ini,) if ini else ())))
-    except IlcncError as exc:
-        _fail(exc)
-    if as_json:
-        typer.echo(json.dumps({**res.to_json(), "hal_file": str(write_hal) if write_hal else None}))
-        return
-    typer.echo(res.text(write_hal), nl=False)
 
 
 def main() -> None:

@@ -9,6 +9,7 @@ from ilcnc._lazy import lazy_exports
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
     'detect': ('LOG_FORMATS', 'detect_log_format', 'estimate_log_samples', 'read_log'),
+    'heightmap': ('HEIGHT_MAP_FORMATS', 'HeightMap', 'detect_height_map', 'read_height_map'),
     'halsampler': ('HALSAMPLER_COLUMNS', 'commands_from_lines', 'halsampler_column_map', 'moves_from_lines', 'read_halsampler'),
     'log': (
         'AXIS_LOG_HEADER', 'AxisLog', 'check_sample_times', 'decode_text', 'format_axis_log', 'norm_unit',

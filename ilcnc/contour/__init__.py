@@ -15,6 +15,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     'estimates': ('CommandError', 'per_command_error', 'sample_command', 'summary', 'tangent_error'),
     'figures': ('ErrorFigures',),
+    'surface': ('arc_height_error_mm', 'line_split_fractions', 'surface_height_mm'),
     'path': ('FAR_MM', 'PathGeometry', 'TWO_PI', 'WorkBuffers'),
     'search': ('ContourError', 'DEFAULT_CHUNK', 'DEFAULT_WINDOW', 'REACH_FACTOR', 'contour_error', 'guess_hints'),
 }

@@ -50,7 +50,7 @@ from ilcnc.program.model import (
 from ilcnc.program.numwords import parse_plain, spell, splice
 from ilcnc.units import AXIS_LETTERS, CENTER_LETTERS
 
-__all__ = ["Edit", "Edits", "apply_corrections", "format_number", "spelling"]
+__all__ = ["Edit", "Edits", "apply_corrections", "apply_move_ends", "format_number", "spelling"]
 
 _LETTERS = AXIS_LETTERS
 _CENTER_LETTERS = CENTER_LETTERS
@@ -185,6 +185,57 @@ def apply_corrections(
     desired[program.command_moves] += corr
     changed = np.zeros(m, dtype=bool)
     changed[program.command_moves] = np.any(corr != 0.0, axis=1)
+    return _rewrite_ends(program, desired, changed, min_decimals, extra_edits)
+
+
+def apply_move_ends(program: Program, ends_mm: NDArray[np.float64], *, min_decimals: int = 3
+                    ) -> tuple[str, list[Edit]]:
+    """Return the program text with every move ending at ``ends_mm``: any move, rapids and arcs too.
+
+    An arc keeps its centre (incremental centre words are rewritten when its start moved); an arc whose
+    end moves along its plane's normal (Z of a G17 arc) becomes a helix. Moves whose row equals their
+    end point are left as written (and absorb a moved start as :func:`apply_corrections` does).
+
+    Parameters
+    ----------
+    program : Program
+        The program as read.
+    ends_mm : ndarray, shape (M, 3)
+        Wanted end point of every move, mm, the frame of :attr:`MoveTable.end_mm`.
+    min_decimals : int
+        Least number of decimals of a rewritten number.
+
+    Returns
+    -------
+    text, edits
+        As :func:`apply_corrections`.
+
+    Raises
+    ------
+    CorrectionError
+        Wrong shape or non-finite ends, or a word that cannot take the change (see
+        :func:`apply_corrections`).
+    """
+    program.require_complete()
+    mv = program.moves
+    ends = np.asarray(ends_mm, dtype=np.float64)
+    if ends.shape != mv.end_mm.shape:
+        raise CorrectionError(program.path, None, f"end points have shape {ends.shape}, program has {len(mv)} moves")
+    if not np.all(np.isfinite(ends)):
+        i = int(np.flatnonzero(~np.all(np.isfinite(ends), axis=1))[0])
+        raise CorrectionError(program.path, int(mv.line[i]), "the wanted end point of this move is not finite")
+    changed = np.any(ends != mv.end_mm, axis=1)
+    if not changed.any():
+        return program.text, []
+    return _rewrite_ends(program, ends.copy(), changed, min_decimals, None)
+
+
+def _rewrite_ends(program: Program, desired: NDArray[np.float64], changed: NDArray[np.bool_], min_decimals: int,
+                  extra_edits: list[Edit] | None) -> tuple[str, list[Edit]]:
+    """The rewrite both entry points share: moves ``changed`` end at ``desired``, every other move keeps its
+    absolute end point."""
+    mv = program.moves
+    m = len(mv)
     klartext = program.dialect == "heidenhain"
     realized = mv.end_mm.copy()
     edits: list[Edit] = []

@@ -22,6 +22,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'figures_line', 'judge', 'junit_xml', 'read_baseline', 'write_baseline'
     ),
     'inspect': ('InspectReport', 'command_table_csv', 'corner_rounding_warnings', 'inspect_program', 'print_report'),
+    'levelling': ('LEVEL_MARKER', 'LEVEL_TOLERANCE_MM', 'MAX_ARC_PIECES', 'LevelResult', 'find_level_stamp', 'level_program'),
     'linuxcnc': (
         'DEFAULT_CONFIG_DIR', 'DEFAULT_LOCK_TIMEOUT_S', 'LinuxCNCBusyError', 'LockHolder', 'MAX_TIME_SCALE',
         'RunResult', 'linuxcnc_available', 'lock_holder', 'other_linuxcnc', 'record_run', 'run_lock', 'run_program',
