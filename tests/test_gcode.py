@@ -609,3 +609,21 @@ def test_corrections_in_rotated_work_systems_land_on_the_machine(path: Path) -> 
     added = [e for e in edits if e.start == e.end]
     assert any(turned[k] and corr[k, 1] == 0.0 for k in range(n))
     assert added, "no axis word was added for a correction that the rotation turned onto the other axis"
+
+
+def test_a_loop_over_very_long_lines_is_refused_not_lexed_for_minutes() -> None:
+    # the fuzzer's case: spiral.ngc's 800-times repeat with a line made 7 MB long; each run of a line lexes it
+    # again, so the reader stops at MAX_REPEATED_BYTES of repeated lines with its line, as for an endless loop
+    from ilcnc.program.gcode_flow import MAX_REPEATED_BYTES
+
+    long = "(" + "x" * 200_000 + ")"
+    text = f"G21 G90\nG0 X0 Y0 Z1\no100 repeat [800]\nG91 G1 X0.01 F100 {long}\no100 endrepeat\nG90\nM2\n"
+    assert 800 * len(long) > MAX_REPEATED_BYTES
+    prog = read_gcode(Path("loop.ngc"), text.encode())
+    with pytest.raises(UnsupportedError) as err:
+        prog.require_complete()
+    assert err.value.line == 4 and "64 MB of lines again" in err.value.format()
+    # the same loop over short lines reads whole
+    short = read_gcode(Path("loop.ngc"), text.replace(long, "(short)").encode())
+    short.require_complete()
+    assert len(short.moves) >= 800

@@ -53,10 +53,14 @@ class BlockInterpreter(Protocol):
 
     def execute(self, blk: Any) -> None: ...
 
-__all__ = ["MAX_EXECUTED_LINES", "has_control_flow", "run_control_flow"]
+__all__ = ["MAX_EXECUTED_LINES", "MAX_REPEATED_BYTES", "has_control_flow", "run_control_flow"]
 
 #: Executed lines after which a program is taken not to terminate.
 MAX_EXECUTED_LINES = 80_000
+#: Bytes of lines executed again (a loop or a subprogram call) after which a program is refused: each run of a
+#: line lexes it anew, and a loop of 800 over a line of 7 MB (a fuzzed spiral.ngc) took minutes. 64 MB is 80,000
+#: repeated lines of 800 bytes; a long program that runs straight through repeats nothing.
+MAX_REPEATED_BYTES = 64_000_000
 
 _OLINE = re.compile(
     r"\s*(?:/\s*)?(?:[Nn]\s*\d+\s*)?[Oo]\s*(<[^>]*>|\d+)\s*"
@@ -243,6 +247,7 @@ def run_control_flow(
             out.append(v)
         return out
 
+    repeated = 0
     try:
         while pc < n:
             steps += 1
@@ -254,6 +259,11 @@ def run_control_flow(
             o = struct.olines.get(i)
             if o is None:
                 raw = lines[i]
+                if executed[i]:
+                    repeated += len(raw)
+                    if repeated > MAX_REPEATED_BYTES:
+                        raise Unmodelled(line, f"program executes more than {MAX_REPEATED_BYTES // 1_000_000} MB of"
+                                               " lines again in loops or calls (a loop over very long lines?)")
                 s = raw[:-1] if raw.endswith("\r") else raw
                 blk = lexer.lex(s, int(line_start[i]), line)
                 if blk.percent:
