@@ -618,7 +618,7 @@ def _run_dask(jobs: list[BatchJob], scheduler: str | Any, results: list[PartResu
     own = isinstance(scheduler, str)
     if own:
         try:
-            client = Client(scheduler, timeout="30s")
+            client = Client(scheduler, timeout="20s")
         except (OSError, TimeoutError, ValueError) as exc:
             raise UsageError("--scheduler", f"cannot reach a Dask scheduler at {scheduler}: {exc}") from None
     else:
