@@ -165,3 +165,26 @@ def test_table_says_which_parts_were_run_again(tmp_path: Path) -> None:
         " attempts)" in words
     summary = batch.summary_csv(rows).splitlines()
     assert summary[0].endswith(",attempts") and summary[2].endswith(",2")
+
+
+def test_a_task_that_raises_is_retried_once_then_reported(tmp_path: Path, monkeypatch, scratch) -> None:
+    distributed = pytest.importorskip("distributed", reason="dask.distributed is a test dependency ('.[test]')")
+    (tmp_path / "parts").mkdir()
+    shutil.copy(OWN / "star.ngc", tmp_path / "parts")
+    monkeypatch.chdir(tmp_path)
+    runs = tmp_path / "runs.txt"  # the task is pickled by value (a closure's list would be a copy): count in a file
+
+    def full_disk(part: ShippedPart, threads: int | None = None) -> None:  # a worker whose scratch disk is full
+        with open(runs, "a") as fh:
+            fh.write(part.job.program + "\n")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(batch, "learn_shipped", full_disk)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as c, \
+            distributed.Client(c) as client:
+        res = run_batch(jobs_from_path("parts", EXAMPLE, "out", iterations=1), scheduler=client)
+    assert runs.read_text().split() == ["parts/star.ngc"] * (1 + batch._RETRIES)
+    assert res[0].status == PartStatus.ERROR and res[0].attempts == 1 + batch._RETRIES
+    assert res[0].error == ("parts/star.ngc: the Dask cluster could not run this part: OSError: [Errno 28] No space left"
+                            " on device")
+    assert not Path("out/star.ilc.ngc").exists() and batch.retried(res) == res

@@ -546,11 +546,14 @@ def learn_shipped(part: ShippedPart, threads: int | None = None) -> ReturnedPart
         res.program, res.profile, res.error = job.program, job.profile, rename(res.error)
         res.output = str(out_c) if res.output is not None else None
         if (wstate / STATE_FILE).is_file():
-            st = LearnState.load(wstate)
-            named = [e for e in st.iterations if e.output == str(wout)]
+            try:
+                st: LearnState | None = LearnState.load(wstate)
+            except IlcncError:  # a damaged state: the run refused it with the local run's message already
+                st = None
+            named = [e for e in st.iterations if e.output == str(wout)] if st is not None else []
             for e in named:
                 e.output = str(out_c)  # what the local run records: the output where the client asked for it
-            if named:
+            if st is not None and named:
                 st.save()
         shipped = dict(part.state or ())
         names, back = None, []
@@ -645,24 +648,29 @@ def _run_dask(jobs: list[BatchJob], scheduler: str | Any, results: list[PartResu
         index = {f.key: i for f, i in zip(futs, order, strict=True)}
         for i in here:  # inputs the client cannot read: refused here with the local run's message while the cluster works
             done(i, learn_one(jobs[i]))
+        given_up: set[int] = set()
         for f in as_completed(futs):
             i = index[f.key]
             try:
                 back = f.result()
             except Exception as exc:
+                if type(exc).__name__ == "KilledWorker":
+                    given_up.add(i)
                 done(i, _part_error(jobs[i], _cluster_error(jobs[i], exc)))
             else:
                 done(i, write_returned(shipped[i], back))
         for key, n in _extra_attempts(client, list(index)).items():
-            results[index[key]].attempts += n  # type: ignore[union-attr]
+            i = index[key]
+            # a part Dask gave up was never finished: its attempts are the workers lost while they held it
+            results[i].attempts = max(1, n + (0 if i in given_up else 1))  # type: ignore[union-attr]
     finally:
         if own:
             client.close()
 
 
 def _extra_attempts(client: Any, keys: list[Any]) -> dict[Any, int]:
-    """Per task, the runs beyond the first the scheduler knows of: each worker lost while it held the task
-    (``suspicious``) and each retry after an error. Empty where the scheduler does not answer."""
+    """Per task, the runs that did not give its result: each worker lost while it held the task (``suspicious``)
+    and each run that raised and was retried. Empty where the scheduler does not answer."""
 
     def count(dask_scheduler: Any, keys: list[Any], retries: int) -> dict[Any, int]:  # runs on the scheduler
         out = {}

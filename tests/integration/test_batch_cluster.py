@@ -116,7 +116,7 @@ def _client_folder(root: Path) -> Path:
     (client / "configs").mkdir()
     shutil.copy(REPO / "configs" / "example-mill.yaml", client / "configs")
     for copy in ("a", "b"):
-        for name in ("star.ngc", "circle.ngc", "seed003_line.ngc"):
+        for name in ("star.ngc", "circle.ngc", "square.ngc"):
             shutil.copy(OWN / name, client / "parts" / f"{copy}-{name}")
     return client
 
