@@ -44,7 +44,7 @@ from typing import Any
 
 from ilcnc._threads import limit_process, thread_limit_scope, threads_per_part
 from ilcnc.errors import IlcncError, InputError, StateError, UsageError
-from ilcnc.fileio import inside, read_bytes, remove_stale_temporaries, write_atomic
+from ilcnc.fileio import inside, read_bytes, remove_stale_temporaries, unsynced_writes, write_atomic
 from ilcnc.outcomes import PartStatus
 from ilcnc.shop.state import STATE_FILE, LearnState, state_lock
 
@@ -564,7 +564,8 @@ def learn_shipped(part: ShippedPart, threads: int | None = None) -> ReturnedPart
                            (str(wstate), str(state_c)), (f"{cdir}/", prefix(prof_c.parent)),
                            (f"{odir}/", prefix(out_c.parent)), (f"{pdir}/", prefix(prog_c.parent)),
                            (str(root), "(the worker's folder)")])
-        res = _learn_one_dask(BatchJob(str(wprog), str(wprof), str(wout), str(wstate), job.iterations), threads)
+        with unsynced_writes():  # the folder is thrown away: the client writes (and syncs) what it keeps
+            res = _learn_one_dask(BatchJob(str(wprog), str(wprof), str(wout), str(wstate), job.iterations), threads)
         res.program, res.profile, res.error = job.program, job.profile, rename(res.error)
         res.output = str(out_c) if res.output is not None else None
         if (wstate / STATE_FILE).is_file():
@@ -576,7 +577,8 @@ def learn_shipped(part: ShippedPart, threads: int | None = None) -> ReturnedPart
             for e in named:
                 e.output = str(out_c)  # what the local run records: the output where the client asked for it
             if st is not None and named:
-                st.save()
+                with unsynced_writes():
+                    st.save()
         shipped = dict(part.state or ())
         names, back = None, []
         if wstate.is_dir():
