@@ -67,6 +67,22 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
             proc.wait()
 
 
+def _cpu(procs: list[subprocess.Popen[bytes]]) -> list[float]:
+    """CPU seconds (user + system) of this process, then of each process group started (a worker: its nanny and
+    its worker process), from psutil (a dependency of distributed)."""
+    import psutil
+
+    def tree(pid: int) -> float:
+        try:
+            p = psutil.Process(pid)
+            return sum(sum(q.cpu_times()[:2]) for q in [p, *p.children(recursive=True)])
+        except psutil.NoSuchProcess:
+            return 0.0
+
+    me = sum(psutil.Process().cpu_times()[:2])  # this process alone (the cluster's processes are its children)
+    return [me, *(tree(p.pid) for p in procs)]
+
+
 def _tree(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
@@ -106,7 +122,9 @@ def main() -> int:
               f" load average {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}")
         jobs = jobs_from_path("parts", "mill.yaml", "out", iterations=args.iterations)
         run_batch(jobs_from_path("warm", "mill.yaml", "warm-out", iterations=1), threads=1)  # this process's kernels
+        c0 = _cpu([])[0]
         t_local, local = _timed_batch(jobs)
+        cpu_local = _cpu([])[0] - c0
         failed = [r for r in local if r.status == "error"]
         Path("out").rename("out-local")
         reference = _tree(client_dir / "out-local")
@@ -133,11 +151,16 @@ def main() -> int:
                     shutil.rmtree("warm-out", ignore_errors=True)
                     run_batch(jobs_from_path("warm", "mill.yaml", "warm-out", iterations=1), scheduler=client, threads=1)
                     shutil.rmtree("out", ignore_errors=True)
+                    cpu0 = _cpu(procs)
                     times[n], res = _timed_batch(jobs, scheduler=client)
+                    cpu = [b - a for a, b in zip(cpu0, _cpu(procs), strict=True)]
                     mine = _tree(client_dir / "out")
                     same[n] = mine == reference and [r.to_json() for r in res] == [r.to_json() for r in local]
                     print(f"cluster, {n} worker{'s' if n > 1 else ' '} (dask scheduler):  {times[n]:7.2f} s  "
                           f"({len(mine)} files, {'all identical to the local run' if same[n] else 'DIFFERENT'})")
+                    per = 1e3 / args.parts
+                    print(f"  CPU per part: workers {sum(cpu[2:]) * per:.0f} ms, client {cpu[0] * per:.0f} ms,"
+                          f" scheduler {cpu[1] * per:.0f} ms (local run: {cpu_local * per:.0f} ms)")
         finally:
             for p in reversed(procs):
                 _stop(p)
