@@ -168,7 +168,7 @@ def main() -> int:
     load1 = os.getloadavg()
     eff = times[1] / (2 * times[2])
     print(f"load average after: {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}")
-    print(f"two workers against one: T1 / (2 T2) = {times[1]:.2f} / (2 x {times[2]:.2f}) = {eff:.0%}"
+    print(f"two workers against one: T1 / (2 T2) = {times[1]:.2f} / (2 x {times[2]:.2f}) = {eff:.1%}"
           f" (target >= {TARGET_EFFICIENCY:.0%})  -> {'met' if eff >= TARGET_EFFICIENCY else 'NOT MET'}")
     print(f"cluster against local: one worker {times[1] / t_local:.2f}x the local time, two workers"
           f" {times[2] / t_local:.2f}x")
