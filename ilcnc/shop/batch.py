@@ -439,7 +439,8 @@ def _up_levels(name: str) -> int:
 ProfileFiles = dict[tuple[str, bytes], "tuple[tuple[str, bytes], ...] | str | None"]
 
 
-def _profile_files(path: str, text: bytes) -> tuple[tuple[str, bytes], ...] | str | None:
+def _profile_files(path: str) -> tuple[tuple[str, bytes], ...] | str | None:
+    """What the profile at ``path`` sends with its parts (see :data:`ProfileFiles`)."""
     from ilcnc.profile.load import load_profile
 
     try:
@@ -479,7 +480,7 @@ def ship_part(job: BatchJob, profiles: ProfileFiles | None = None) -> ShippedPar
         profile_text = read_bytes(job.profile)
         key = (job.profile, profile_text)
         if key not in cache:
-            cache[key] = _profile_files(job.profile, profile_text)
+            cache[key] = _profile_files(job.profile)
         files = cache[key]
         ok_state, state_files = _folder_files(state)
         prog = Path(job.program)
