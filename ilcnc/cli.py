@@ -985,6 +985,22 @@ def batch(
     except IlcncError as exc:
         _fail(exc)
     console = _console()
+    try:
+        results = _run_batch(batch_mod, jobs, workers, scheduler, console, as_json)
+        batch_mod.write_summary(out, results)
+    except IlcncError as exc:
+        _fail(exc)
+    failed = [r for r in results if r.failed]
+    if as_json:
+        typer.echo(json.dumps({"parts": [r.to_json() for r in results], "retried": len(batch_mod.retried(results))}))
+    else:
+        _print_batch(results, console, out)
+    if failed:
+        raise typer.Exit(1)
+
+
+def _run_batch(batch_mod, jobs, workers: int, scheduler: str | None, console, as_json: bool) -> list:
+    """The batch's parts learned, with a progress bar and a line per part unless ``as_json``."""
     if as_json:
         results = batch_mod.run_batch(jobs, workers=workers, scheduler=scheduler)
     else:
@@ -1004,17 +1020,7 @@ def batch(
                                   + (f"  {r.error}" if r.error else ""))
 
             results = batch_mod.run_batch(jobs, workers=workers, scheduler=scheduler, on_result=done)
-    try:
-        batch_mod.write_summary(out, results)
-    except IlcncError as exc:
-        _fail(exc)
-    failed = [r for r in results if r.failed]
-    if as_json:
-        typer.echo(json.dumps({"parts": [r.to_json() for r in results]}))
-    else:
-        _print_batch(results, console, out)
-    if failed:
-        raise typer.Exit(1)
+    return results
 
 
 def _print_batch(results, console, out: Path) -> None:
@@ -1036,6 +1042,16 @@ def _print_batch(results, console, out: Path) -> None:
                 f"{um(ce['before'])}→{um(ce['after'])}", str(r.clipped), str(r.status)]
         t.add_row(*row)
     console.print(t)
+    again = [r for r in results if r.attempts > 1]
+    if again:
+        import textwrap
+
+        # a Dask worker lost mid-run costs its parts only: Dask ran them again on the others (issue 24 item 5)
+        names = ", ".join(f"{Path(r.program).name} ({r.attempts} attempts)" for r in again[:5])
+        more = f" and {len(again) - 5} more" if len(again) > 5 else ""
+        console.print("\n".join(textwrap.wrap(f"retried: {len(again)} part{'' if len(again) == 1 else 's'} whose worker"
+                                               f" was lost or whose task failed, run again: {names}{more}", 80,
+                                               subsequent_indent="  ")))
     console.print(f"summary: {out / 'summary.csv'}")
 
 

@@ -60,3 +60,27 @@ def test_identify_write_keeps_the_profile_mode(tmp_path: Path, umask: None) -> N
                                    "--axis", "x", "--profile", str(prof), "--write"])
     assert res.exit_code == 0, res.output
     assert "omega0_rad_s: 96." in prof.read_text() and _mode(prof) == 0o644
+
+
+def test_unsynced_writes_skip_fsync_in_this_thread_only(tmp_path, monkeypatch) -> None:
+    import threading
+
+    from ilcnc import fileio
+
+    synced: list[str] = []
+    real = os.fsync
+    monkeypatch.setattr(fileio.os, "fsync", lambda fd: (synced.append(threading.current_thread().name), real(fd)))
+    other_done = threading.Event()
+
+    def other() -> None:  # another thread of the process (the client of an in-process cluster) keeps syncing
+        fileio.write_atomic(tmp_path / "kept.txt", "kept\n")
+        other_done.set()
+
+    with fileio.unsynced_writes():
+        fileio.write_atomic(tmp_path / "scratch.txt", "scratch\n")
+        t = threading.Thread(target=other, name="client")
+        t.start()
+        t.join(10)
+    fileio.write_atomic(tmp_path / "after.txt", "after\n")
+    assert other_done.is_set() and synced == ["client", threading.current_thread().name]
+    assert (tmp_path / "scratch.txt").read_text() == "scratch\n" and (tmp_path / "kept.txt").read_text() == "kept\n"

@@ -8,7 +8,8 @@ that owns a name.
 from ilcnc._lazy import lazy_exports
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
-    'batch': ('BatchJob', 'PartResult', 'folder_programs', 'jobs_from_path', 'run_batch', 'summary_csv'),
+    'batch': ('BatchJob', 'PartResult', 'ReturnedPart', 'ShippedPart', 'folder_programs', 'jobs_from_path',
+              'learn_shipped', 'retried', 'run_batch', 'ship_part', 'summary_csv', 'write_returned'),
     'corrections': ('read_corrections', 'write_corrections'),
     'diff': (
         'ChangedLine', 'DiffInserted', 'ProgramDiff', 'WORD_KINDS', 'WordChange', 'diff_files', 'diff_programs',

@@ -18,25 +18,38 @@ Manifest (YAML)::
         profiles: [configs/mill-a.yaml, configs/mill-b.yaml]   # program × profile pairs
 
 Paths are relative to the manifest's folder.
+
+On a Dask cluster (``scheduler=``) a worker may be another machine with none of the client's files: each
+part is sent as contents (:class:`ShippedPart`: the program's bytes, the profile's text and the files it
+names, the part's learning state if one exists), learned in a private folder of the worker
+(:func:`learn_shipped`), and its output, state files and result come back (:class:`ReturnedPart`); the client
+writes them where it asked, as the local run writes them (:func:`write_returned`). A part whose worker was
+lost is run again by Dask; its ``attempts`` count the workers that held it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import functools
 import io
+import os
 import reprlib
+import shutil
+import tempfile
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ilcnc._threads import limit_process, thread_limit_scope, threads_per_part
-from ilcnc.errors import IlcncError, InputError
-from ilcnc.fileio import inside, read_bytes, write_atomic
+from ilcnc.errors import IlcncError, InputError, StateError, UsageError
+from ilcnc.fileio import inside, read_bytes, remove_stale_temporaries, unsynced_writes, write_atomic
 from ilcnc.outcomes import PartStatus
+from ilcnc.shop.state import STATE_FILE, LearnState, state_lock
 
-__all__ = ["BatchJob", "PartResult", "folder_programs", "jobs_from_path", "run_batch", "summary_csv"]
+__all__ = ["BatchJob", "PartResult", "ReturnedPart", "ShippedPart", "folder_programs", "jobs_from_path", "learn_shipped",
+           "retried", "run_batch", "ship_part", "summary_csv", "write_returned"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,6 +79,9 @@ class PartResult:
     #: the cutting moves' max before / after and the air moves' max after, mm; cycle time before / after, s
     max_error_mm: dict[str, float | None] = field(default_factory=lambda: {"before": None, "after": None, "air_after": None})
     cycle_time_s: dict[str, float | None] = field(default_factory=lambda: {"before": None, "after": None})
+    #: times the part was started: 1, plus one for each Dask worker that was lost while it held the part (Dask ran
+    #: it again on another); always 1 on local workers
+    attempts: int = 1
 
     @property
     def failed(self) -> bool:
@@ -336,25 +352,382 @@ def _learn_one_dask(job: BatchJob, threads: int | None = None) -> PartResult:
         return learn_one(job)
 
 
+# ------------------------------------------------------------------ a part as contents, for a Dask worker
+
+#: Profile keys that name a file (relative to the profile file): a part sent to a Dask worker carries their contents.
+#: tests/test_batch.py checks this list against the schema's keys described as "relative to the profile file".
+_PROFILE_FILE_KEYS = ("geometry.map", "tool.frf_csv", "cutting.stock")
+#: Times Dask runs a part again whose task raised (a worker's disk full, say); a lost worker is Dask's own rule
+#: (``distributed.scheduler.allowed-failures``, 3 by default: a part that took down more workers is given up).
+_RETRIES = 1
+#: Threads of the client that write the parts' results back (they wait on the disk's fsync, not on a core).
+_WRITERS = 4
+#: Versions a worker must share with the client: the outputs are byte for byte those of the same versions only.
+_VERSIONED = ("ilcnc", "numpy", "scipy", "numba", "llvmlite")
+
+
+@dataclass(frozen=True, slots=True)
+class ShippedPart:
+    """One part as contents, for a worker that has none of the client's files.
+
+    ``job`` keeps the client's paths (the names in messages and results). ``profile_files`` are the files the
+    profile names, as written in it, with their bytes; ``state`` the part's learning state folder (file name,
+    bytes) and ``program_state`` the one beside the program (``PROG.state``: a program that is an earlier output
+    is recognised by it), None where the client has none. ``shared_folder``: program and output in one folder.
+    """
+
+    job: BatchJob
+    versions: tuple[str, ...]
+    program: bytes
+    profile: bytes
+    profile_files: tuple[tuple[str, bytes], ...] = ()
+    state: tuple[tuple[str, bytes], ...] | None = None
+    program_state: tuple[tuple[str, bytes], ...] | None = None
+    shared_folder: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class ReturnedPart:
+    """What a worker sends back: the result (the client's paths in it), the output program's bytes (None: none
+    written), the state files the run wrote or changed, and the names of every file of the state folder after
+    the run (None: the run made no state folder)."""
+
+    result: PartResult
+    output: bytes | None = None
+    state_files: tuple[tuple[str, bytes], ...] = ()
+    state_names: tuple[str, ...] | None = None
+
+
+@functools.lru_cache(maxsize=1)
+def _versions() -> tuple[str, ...]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = []
+    for name in _VERSIONED:
+        try:
+            out.append(f"{name} {version(name)}")
+        except PackageNotFoundError:
+            out.append(f"{name} (not installed)")
+    return tuple(out)
+
+
+def _part_error(job: BatchJob, message: str) -> PartResult:
+    return PartResult(program=job.program, profile=job.profile, status=PartStatus.ERROR, error=message)
+
+
+def _folder_files(folder: Path) -> tuple[bool, tuple[tuple[str, bytes], ...] | None]:
+    """A learning state folder's files by name (None: no folder); False first where it holds anything but files
+    (the client learns such a part itself, as the local run would)."""
+    if not folder.exists():
+        return True, None
+    if not folder.is_dir() or folder.is_symlink():
+        return False, None
+    entries = sorted(folder.iterdir())
+    if any(not p.is_file() or p.is_symlink() for p in entries):
+        return False, None
+    return True, tuple((p.name, read_bytes(p)) for p in entries)
+
+
+def _up_levels(name: str) -> int:
+    """Leading ``..`` of a relative file name, normalised (``maps/../../x.csv``: 1)."""
+    parts = Path(os.path.normpath(name)).parts
+    return next((i for i, p in enumerate(parts) if p != ".."), len(parts))
+
+
+#: What a profile sends with its parts (its files by name as written in it, with their bytes), or why it cannot go
+#: (a refusal's message; None: the client cannot read or check it), by (profile path, profile bytes).
+ProfileFiles = dict[tuple[str, bytes], "tuple[tuple[str, bytes], ...] | str | None"]
+
+
+def _profile_files(path: str) -> tuple[tuple[str, bytes], ...] | str | None:
+    """What the profile at ``path`` sends with its parts (see :data:`ProfileFiles`)."""
+    from ilcnc.profile.load import load_profile
+
+    try:
+        profile = load_profile(path)
+        files = []
+        for key in _PROFILE_FILE_KEYS:
+            section, name = key.split(".")
+            value = getattr(getattr(profile, section), name)
+            if value is None:
+                continue
+            if Path(value).expanduser().is_absolute():
+                return InputError(Path(path), None, f"{key}: {value} is an absolute path, which a Dask worker does not"
+                                  " have: name it relative to the profile (the file is sent with the part)").format()
+            files.append((str(value), read_bytes(profile.resolve(value))))
+    except (IlcncError, OSError):
+        return None
+    return tuple(files)
+
+
+def ship_part(job: BatchJob, profiles: ProfileFiles | None = None) -> ShippedPart | PartResult | None:
+    """The part as contents (:class:`ShippedPart`), read on the client.
+
+    Returns a refusal (:class:`PartResult`, status ``error``) for a profile naming a file by an absolute path
+    (a worker has no such file), and None where the client cannot read or check an input: the client learns
+    that part itself, which refuses it with the local run's message (or finds it does not need the file).
+    As ``ilcnc learn`` does first, what killed writers left of this part's output and state is removed here.
+    ``profiles``: a batch's cache of what each profile sends (a profile is loaded once, not once per part:
+    ~40 ms each, 8 s of a 200-part batch before the first part could start).
+    """
+    out, state = Path(job.out), Path(job.state)
+    if state.is_dir():
+        remove_stale_temporaries(state)
+    remove_stale_temporaries(out.parent if str(out.parent) else Path("."), out.name)
+    cache: ProfileFiles = {} if profiles is None else profiles
+    try:
+        program = read_bytes(job.program)
+        profile_text = read_bytes(job.profile)
+        key = (job.profile, profile_text)
+        if key not in cache:
+            cache[key] = _profile_files(job.profile)
+        files = cache[key]
+        ok_state, state_files = _folder_files(state)
+        prog = Path(job.program)
+        ok_beside, beside = _folder_files(prog.with_name(prog.name + ".state"))
+    except (IlcncError, OSError):
+        return None
+    if isinstance(files, str):
+        return _part_error(job, files)
+    if files is None or not (ok_state and ok_beside):
+        return None
+    shared = prog.parent.resolve() == out.parent.resolve()
+    return ShippedPart(job, _versions(), program, profile_text, files, state_files, beside, shared)
+
+
+def _scratch_folder() -> str | None:
+    """The Dask worker's own scratch folder (Dask removes a killed worker's when the next worker starts)."""
+    try:
+        from distributed import get_worker
+
+        return str(get_worker().local_directory)
+    except (ImportError, ValueError, AttributeError):  # not in a worker: the system's temporary folder
+        return None
+
+
+def _unpack(folder: Path, files: tuple[tuple[str, bytes], ...] | None) -> None:
+    if files is None:
+        return
+    folder.mkdir()
+    for name, data in files:
+        (folder / name).write_bytes(data)
+
+
+def _renamer(pairs: list[tuple[str, str]]) -> Callable[[str | None], str | None]:
+    """Text with the worker's paths replaced by the client's (longest first: a folder is a prefix of its files)."""
+    ordered = sorted(pairs, key=lambda p: -len(p[0]))
+
+    def rename(text: str | None) -> str | None:
+        if text is None:
+            return None
+        for worker, client in ordered:
+            text = text.replace(worker, client)
+        return text
+
+    return rename
+
+
+def learn_shipped(part: ShippedPart, threads: int | None = None) -> ReturnedPart:
+    """Learn a shipped part in a private folder of this worker; return its output, state files and result.
+
+    The task writes nothing outside that folder (removed at the end), so Dask may run it again on another
+    worker when this one is lost. Messages and results name the client's paths, and the state records the
+    client's output path, so the client writes what the local run writes.
+    """
+    job = part.job
+    mine = _versions()
+    if part.versions != mine:
+        diff = ", ".join(f"{m} here, {c} on the client" for m, c in zip(mine, part.versions, strict=False) if m != c)
+        return ReturnedPart(_part_error(job, f"{job.program}: this Dask worker runs other versions ({diff}): install"
+                                        " the client's versions on every worker (outputs are byte for byte those of"
+                                        " the same versions only)"))
+    root = Path(tempfile.mkdtemp(prefix="ilcnc-part-", dir=_scratch_folder()))
+    try:
+        prog_c, prof_c, out_c, state_c = Path(job.program), Path(job.profile), Path(job.out), Path(job.state)
+        pdir = root / "program"
+        odir = pdir if part.shared_folder else root / "out"
+        # the profile deep enough that its '../' names stay inside the private folder
+        cdir = root.joinpath("profile", *["up"] * max((_up_levels(n) for n, _ in part.profile_files), default=0))
+        for d in (pdir, odir, cdir):
+            d.mkdir(parents=True, exist_ok=True)
+        wprog, wprof, wout, wstate = pdir / prog_c.name, cdir / prof_c.name, odir / out_c.name, odir / state_c.name
+        wprog.write_bytes(part.program)
+        wprof.write_bytes(part.profile)
+        for name, data in part.profile_files:
+            dest = Path(os.path.normpath(cdir / name))
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            dest.write_bytes(data)
+        _unpack(wstate, part.state)
+        _unpack(pdir / (prog_c.name + ".state"), part.program_state)
+
+        def prefix(d: Path) -> str:
+            return "" if str(d) == "." else f"{d}/"
+
+        rename = _renamer([(str(wprog), str(prog_c)), (str(wprof), str(prof_c)), (str(wout), str(out_c)),
+                           (str(wstate), str(state_c)), (f"{cdir}/", prefix(prof_c.parent)),
+                           (f"{odir}/", prefix(out_c.parent)), (f"{pdir}/", prefix(prog_c.parent)),
+                           (str(root), "(the worker's folder)")])
+        with unsynced_writes():  # the folder is thrown away: the client writes (and syncs) what it keeps
+            res = _learn_one_dask(BatchJob(str(wprog), str(wprof), str(wout), str(wstate), job.iterations), threads)
+        res.program, res.profile, res.error = job.program, job.profile, rename(res.error)
+        res.output = str(out_c) if res.output is not None else None
+        if (wstate / STATE_FILE).is_file():
+            try:
+                st: LearnState | None = LearnState.load(wstate)
+            except IlcncError:  # a damaged state: the run refused it with the local run's message already
+                st = None
+            named = [e for e in st.iterations if e.output == str(wout)] if st is not None else []
+            for e in named:
+                e.output = str(out_c)  # what the local run records: the output where the client asked for it
+            if st is not None and named:
+                with unsynced_writes():
+                    st.save()
+        shipped = dict(part.state or ())
+        names, back = None, []
+        if wstate.is_dir():
+            entries = sorted(wstate.iterdir())
+            names = tuple(p.name for p in entries)
+            for p in entries:
+                data = p.read_bytes()
+                if shipped.get(p.name) != data:
+                    back.append((p.name, data))
+        return ReturnedPart(res, wout.read_bytes() if wout.is_file() else None, tuple(back), names)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
+def write_returned(part: ShippedPart, back: ReturnedPart) -> PartResult:
+    """Write what a worker returned where the client asked, as the local run writes it: the state's files, then
+    ``state.json`` (the commit point), then the output, each atomically with the user's umask.
+
+    The state is locked meanwhile; a state another ``ilcnc learn`` changed while the part was on the cluster is
+    left alone and the part reported as an error.
+    """
+    job = part.job
+    state = Path(job.state)
+    try:
+        with state_lock(state):
+            index = state / STATE_FILE
+            now = read_bytes(index) if index.is_file() else None
+            if now != dict(part.state or ()).get(STATE_FILE):
+                raise StateError(state, None, "changed while the part was learned on the cluster (another ilcnc learn?):"
+                                 " nothing of this run was written; learn the part again")
+            if back.state_names is not None:
+                state.mkdir(exist_ok=True)
+                files = dict(back.state_files)
+                for name, data in files.items():
+                    if name != STATE_FILE:
+                        write_atomic(state / name, data)
+                for name, _ in part.state or ():
+                    if name not in back.state_names:  # files the run removed (a killed run's leftovers)
+                        (state / name).unlink(missing_ok=True)
+                if STATE_FILE in files:
+                    write_atomic(index, files[STATE_FILE])
+            if back.output is not None:
+                write_atomic(job.out, back.output, protect=(job.program, job.profile))
+    except IlcncError as exc:
+        return _part_error(job, exc.format())
+    except OSError as exc:  # the client's disk full, a folder not writable: this part's error, as in the local run
+        return _part_error(job, f"{exc.filename or job.out}: cannot write: {exc.strerror or exc}")
+    return back.result
+
+
+def _cluster_error(job: BatchJob, exc: BaseException) -> str:
+    """The one-line error of a part the cluster gave up (workers lost, a worker without ilcnc, ...)."""
+    if type(exc).__name__ == "KilledWorker":
+        return (f"{job.program}: Dask gave this part up after the workers that ran it were lost (allowed-failures): does"
+                " it need more memory than a worker has?")
+    text = " ".join(str(exc).split())[:200]
+    return f"{job.program}: the Dask cluster could not run this part: {type(exc).__name__}: {text}"
+
+
 def _run_dask(jobs: list[BatchJob], scheduler: str | Any, results: list[PartResult | None],
               on_result: Callable[[PartResult], None] | None, threads: int | None = None) -> None:
+    import concurrent.futures as cf
+
     try:
         from distributed import Client, as_completed
     except ImportError:
         raise InputError(None, None, "--scheduler needs dask.distributed: pip install 'dask[distributed]'") from None
     own = isinstance(scheduler, str)
-    client = Client(scheduler) if own else scheduler
+    if own:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise UsageError("--scheduler", f"cannot reach a Dask scheduler at {scheduler}: {exc}") from None
+    else:
+        client = scheduler
+
+    def done(i: int, r: PartResult) -> None:
+        results[i] = r
+        if on_result:
+            on_result(r)
+
     try:
-        futs = client.map(_learn_one_dask, jobs, threads=threads, pure=False)
-        index = {f.key: i for i, f in enumerate(futs)}
-        for f in as_completed(futs):
-            i = index[f.key]
-            results[i] = f.result()
-            if on_result:
-                on_result(results[i])  # type: ignore[arg-type]
+        shipped: dict[int, ShippedPart] = {}
+        here: list[int] = []
+        profiles: ProfileFiles = {}
+        for i, job in enumerate(jobs):
+            sh = ship_part(job, profiles)
+            if isinstance(sh, ShippedPart):
+                shipped[i] = sh
+            elif sh is None:
+                here.append(i)
+            else:
+                done(i, sh)
+        order = sorted(shipped)
+        futs = client.map(learn_shipped, [shipped[i] for i in order], threads=threads, pure=False, retries=_RETRIES)
+        index = {f.key: i for f, i in zip(futs, order, strict=True)}
+        for i in here:  # inputs the client cannot read: refused here with the local run's message while the cluster works
+            done(i, learn_one(jobs[i]))
+        given_up: set[int] = set()
+        # the client writes each part's files (~9 fsyncs, ~60 ms a small part): in threads, which wait on the disk
+        # together (one thread after the other capped two workers' throughput at one's)
+        with cf.ThreadPoolExecutor(max_workers=_WRITERS, thread_name_prefix="ilcnc-write") as writers:
+            writing: dict[cf.Future[PartResult], int] = {}
+
+            def written(wait: bool) -> None:
+                finished = list(cf.as_completed(writing)) if wait else [w for w in writing if w.done()]
+                for w in finished:
+                    done(writing.pop(w), w.result())
+
+            for f in as_completed(futs):
+                i = index[f.key]
+                try:
+                    back = f.result()
+                except Exception as exc:
+                    if type(exc).__name__ == "KilledWorker":
+                        given_up.add(i)
+                    done(i, _part_error(jobs[i], _cluster_error(jobs[i], exc)))
+                else:
+                    writing[writers.submit(write_returned, shipped[i], back)] = i
+                written(False)
+            written(True)
+        for key, n in _extra_attempts(client, list(index)).items():
+            i = index[key]
+            # a part Dask gave up was never finished: its attempts are the workers lost while they held it
+            results[i].attempts = max(1, n + (0 if i in given_up else 1))  # type: ignore[union-attr]
     finally:
         if own:
             client.close()
+
+
+def _extra_attempts(client: Any, keys: list[Any]) -> dict[Any, int]:
+    """Per task, the runs that did not give its result: each worker lost while it held the task (``suspicious``)
+    and each run that raised and was retried. Empty where the scheduler does not answer."""
+
+    def count(dask_scheduler: Any, keys: list[Any], retries: int) -> dict[Any, int]:  # runs on the scheduler
+        out = {}
+        for k in keys:
+            ts = dask_scheduler.tasks.get(k)
+            if ts is not None:
+                out[k] = int(ts.suspicious) + max(0, retries - int(ts.retries))
+        return out
+
+    try:
+        return dict(client.run_on_scheduler(count, keys=keys, retries=_RETRIES))
+    except Exception:  # a scheduler that refuses code from clients: the counts are unknown, not wrong
+        return {}
 
 
 def summary_csv(results: Iterable[PartResult]) -> str:
@@ -364,7 +737,8 @@ def summary_csv(results: Iterable[PartResult]) -> str:
     # the figures are the cutting moves' (ilcnc.contour.air); columns after "error" were added later (kept at the end
     # so that scripts reading the first ten keep working)
     w.writerow(["program", "profile", "status", "g01_commands", "iterations", "rms_before_mm", "rms_after_mm", "clipped",
-                "output", "error", "max_before_mm", "max_after_mm", "air_max_after_mm", "cycle_before_s", "cycle_after_s"])
+                "output", "error", "max_before_mm", "max_after_mm", "air_max_after_mm", "cycle_before_s", "cycle_after_s",
+                "attempts"])
 
     def num(x: float | None, fmt: str = ".6f") -> str:
         return "" if x is None else format(x, fmt)
@@ -373,8 +747,13 @@ def summary_csv(results: Iterable[PartResult]) -> str:
         ce, mx, cy = r.contour_error_mm, r.max_error_mm, r.cycle_time_s
         w.writerow([r.program, r.profile, r.status, r.g01_commands, r.iterations, num(ce["before"]), num(ce["after"]),
                     r.clipped, r.output or "", r.error or "", num(mx["before"]), num(mx["after"]), num(mx["air_after"]),
-                    num(cy["before"], ".3f"), num(cy["after"], ".3f")])
+                    num(cy["before"], ".3f"), num(cy["after"], ".3f"), r.attempts])
     return buf.getvalue()
+
+
+def retried(results: Iterable[PartResult]) -> list[PartResult]:
+    """The parts that were started more than once (their Dask worker was lost, or their task raised)."""
+    return [r for r in results if r.attempts > 1]
 
 
 def write_summary(out_dir: str | Path, results: list[PartResult]) -> Path:
