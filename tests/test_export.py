@@ -153,9 +153,10 @@ def test_corrections_on_unsupported_program_are_refused(tmp_path: Path) -> None:
     assert r.returncode == 1
     assert "nurbs.ngc:4:" in r.stderr and "G5.2 NURBS is not modelled" in r.stderr
     assert not (tmp_path / "o.ngc").exists()
-    # systems.ngc is read since G5.1 splines are: its command 0 ends where a spline starts, which cannot move
+    # systems.ngc is read since G5.1 splines are: its command 0 (line 14) ends where the spline on line 15 starts,
+    # so the writer refuses its correction on its own line (before: when the spline's start could not follow)
     r = _cli("export", str(SAMPLES / "gcode" / "systems.ngc"), "--out", str(tmp_path / "o.ngc"), "--corrections", str(csv))
-    assert r.returncode == 1 and "systems.ngc:15:" in r.stderr
+    assert r.returncode == 1 and "systems.ngc:14:" in r.stderr and "next block reads its end point" in r.stderr
     assert not (tmp_path / "o.ngc").exists()
 
 

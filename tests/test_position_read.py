@@ -62,14 +62,23 @@ def test_a_block_reading_the_position_freezes_the_g1_before_it_and_the_output_ke
 
 
 def test_without_the_freeze_a_g92_after_a_corrected_g1_shifts_every_later_move(tmp_path) -> None:
-    """Why the rule exists: the same correction written on the G1 before a G92 moves the whole second square."""
+    """Why the rule exists: a correction on the G1 before a G92 moves the whole second square. The writer refuses
+    it (one line, the line named); the same change made by hand in the text shows what it would do."""
+    from ilcnc.errors import CorrectionError
+
     text = HEAD + SQUARE + "G92 X0 Y0\n" + SQUARE + "M2\n"
     prog = _read(tmp_path, text)
     k = int(np.flatnonzero(prog.moves.flags[prog.command_moves] & FLAG_POSITION_READ)[0])
     corr = np.zeros((prog.n_commands, 3))
     corr[k] = (0.01, -0.02, 0.0)
-    out, _ = program_with_corrections(prog, corr, load_profile(PROFILE))
-    mv0, mv1 = prog.moves, _read(tmp_path, out, "out.ngc").moves
+    with pytest.raises(CorrectionError) as err:
+        program_with_corrections(prog, corr, load_profile(PROFILE))
+    line = int(prog.command_line[k])
+    assert err.value.line == line and "next block reads its end point" in err.value.format()
+    lines = text.split("\n")
+    end = prog.moves.end_mm[prog.command_moves[k]]
+    lines[line - 1] = f"G1 X{end[0] + 0.01:.4f} Y{end[1] - 0.02:.4f}"
+    mv0, mv1 = prog.moves, _read(tmp_path, "\n".join(lines), "out.ngc").moves
     after = mv0.line > 11
     np.testing.assert_allclose(mv1.end_mm[after] - mv0.end_mm[after], np.tile([0.01, -0.02, 0.0], (after.sum(), 1)),
                                atol=1e-12)  # the whole square, shifted by the correction (float sums of mm)
@@ -167,3 +176,22 @@ def test_klartext_cc_without_coordinates_freezes_the_l_before_it(tmp_path) -> No
     assert prog.command_line[frozen].tolist() == [8]
     assert correctable_commands(prog)[prog.command_line == 5].all()
     assert any(w.startswith("line 9: CC without both pole coordinates") for w in prog.warnings)
+
+
+def test_export_refuses_a_correction_of_a_command_whose_end_point_the_next_block_reads(tmp_path) -> None:
+    # the learner never corrects such a command; a corrections CSV given to export must not either: G92 would take
+    # the corrected position and every later move would shift by the correction
+    from ilcnc.errors import CorrectionError
+    from ilcnc.program.rewrite import apply_corrections
+
+    prog = _read(tmp_path, "G21 G90\nG0 X0 Y0 Z0\nG1 X1 Y1 F100\nG92 X0 Y0\nG1 X5 Y5\nM2\n")
+    corr = np.zeros((prog.n_commands, 3))
+    k = int(np.flatnonzero(prog.command_line == 3)[0])
+    corr[k] = (0.01, 0.0, 0.0)
+    with pytest.raises(CorrectionError) as err:
+        apply_corrections(prog, corr)
+    assert err.value.line == 3 and "next block reads its end point" in err.value.format()
+    other = np.zeros_like(corr)
+    other[int(np.flatnonzero(prog.command_line == 5)[0])] = (0.01, 0.0, 0.0)
+    text, _edits = apply_corrections(prog, other)  # the command after the G92 takes one
+    assert "X5.01" in text

@@ -35,6 +35,8 @@ from ilcnc.errors import CorrectionError
 from ilcnc.program.model import (
     FLAG_HOME,
     FLAG_MACHINE,
+    FLAG_POLAR,
+    FLAG_POSITION_READ,
     MOVE_ARC_CW,
     PLANE_AXES,
     SPAN_LAZY,
@@ -181,6 +183,15 @@ def apply_corrections(
             return _assemble(program, list(extra_edits))
         none = np.zeros(0, dtype=np.int64)
         return program.text, Edits(none, none, none, b"", none, none)
+    # a command whose end point the next block reads (G92, G10 L20, a cycle, G5.1/G5.2, polar: FLAG_POSITION_READ,
+    # FLAG_POLAR) would carry its correction into every later move: refused, never written
+    held = (mv.flags[program.command_moves] & (FLAG_POSITION_READ | FLAG_POLAR)) != 0
+    bad = np.flatnonzero(held & np.any(corr != 0.0, axis=1))
+    if bad.size:
+        k = int(bad[0])
+        raise CorrectionError(program.path, int(program.command_line[k]),
+                              f"command k={k} cannot take a correction: the next block reads its end point (or it is"
+                              " polar), so every later move would shift with it")
     desired = mv.end_mm.copy()
     desired[program.command_moves] += corr
     changed = np.zeros(m, dtype=bool)

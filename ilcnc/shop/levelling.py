@@ -39,6 +39,7 @@ from ilcnc.program.model import (
     FLAG_HOME,
     FLAG_MACHINE,
     FLAG_POLAR,
+    FLAG_POSITION_READ,
     FLAG_REPEATED,
     MOVE_ARC_CCW,
     MOVE_ARC_CW,
@@ -56,7 +57,9 @@ LEVEL_TOLERANCE_MM = 0.001
 LEVEL_MARKER = "ilcnc level"
 
 _STAMP = re.compile(r"ilcnc: levelled with (?P<name>\S+) sha256:(?P<sha>[0-9a-f]{16})")
-_SKIP_FLAGS = FLAG_MACHINE | FLAG_HOME | FLAG_REPEATED | FLAG_POLAR
+# FLAG_POSITION_READ: the next block (G92, G10 L20, a cycle, ...) reads its end point: levelled, every later
+# move would shift by its dz
+_SKIP_FLAGS = FLAG_MACHINE | FLAG_HOME | FLAG_REPEATED | FLAG_POLAR | FLAG_POSITION_READ
 
 
 @dataclass(kw_only=True, slots=True)
