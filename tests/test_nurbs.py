@@ -220,3 +220,36 @@ def test_no_motion_mode_after_g5_3(tmp_path: Path) -> None:
     them')."""
     prog = read_program(_prog(tmp_path, "G5.2 X0 Y1 P1\nX1 Y2 P1\nX2 Y0 P1\nG5.3\nX5 Y5"))
     assert prog.unsupported is not None and prog.unsupported[0] == 7 and "motion mode" in prog.unsupported[1]
+
+
+def test_linuxcnc_samples_the_same_curve(tmp_path: Path) -> None:
+    """The knots, the default order and the first weight as LinuxCNC has them: its ``gcode`` module (AXIS's
+    preview) emits straight feeds on the G5.3 line ending at the curve's points u = umax i / (15 (n + 1)) while
+    they are short of umax (summed step by step: 15 (n + 1) - 1 of them, or one more when the sum rounds below
+    umax), then at the last control point; ilcnc's curve at those parameters is the same to
+    the last bits (the frame change of the third block, turned by 30 degrees and shifted, costs a few ulps of
+    100 mm; the module's inches times 25.4 a few more)."""
+    import json
+
+    from ilcnc.program.model import program_frame_mm
+
+    python = Path("/usr/bin/python3")
+    probe = subprocess.run([str(python), "-c", "import gcode"], capture_output=True) if python.exists() else None
+    if probe is None or probe.returncode != 0:
+        pytest.skip(f"{python} cannot import LinuxCNC's gcode module: LinuxCNC's own curve points not compared")
+    out = tmp_path / "moves.json"
+    subprocess.run([str(python), str(Path(__file__).with_name("lcnc_gcode_dump.py")), str(DATA / "nurbs.ngc"),
+                    str(tmp_path / "params.var"), str(out), "G21"], cwd=tmp_path, env={"HOME": str(tmp_path)},
+                   capture_output=True, check=True, timeout=120, stdin=subprocess.DEVNULL)
+    moves = json.loads(out.read_text())["moves"]
+    for line, ctrl, weights, order in BLOCKS:
+        theirs = np.array([m[2:4] for m in moves if m[0] == 1 and m[1] == line]) * 25.4  # inches to mm
+        count = len(ctrl)
+        assert len(theirs) in (15 * count, 15 * count + 1)
+        u = (count - order + 1) * np.arange(1, len(theirs)) / (15 * count)
+        mine = nurbs_points(np.array(ctrl, float), np.array(weights, float), order, u)
+        assert np.abs(mine - theirs[:-1]).max() <= 1e-11, f"G5.3 line {line}"
+        assert np.abs(theirs[-1] - ctrl[-1]).max() <= 1e-12
+        prog = read_program(DATA / "nurbs.ngc")
+        sel = np.flatnonzero(prog.moves.line == line)
+        assert np.abs(program_frame_mm(prog.moves, prog.moves.end_mm[sel[-1:]], sel[-1:])[0, :2] - ctrl[-1]).max() <= 1e-12

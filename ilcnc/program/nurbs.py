@@ -2,10 +2,11 @@
 
 LinuxCNC's G-code reference ("G5.2 G5.3 NURBS Block") gives the control points
 and their weights; the knots are not programmed, LinuxCNC computes them. Measured
-with its interpreter (the ``gcode`` module's straight feeds on the curve, compared
-with this module to 1e-4 mm for orders 3, 4 and 5 and uneven weights; see
-``tests/test_nurbs.py``) the knot vector is the clamped uniform one with integer
-knots: for ``n + 1`` control points and order ``k`` (degree ``k - 1``)
+with its interpreter (the ``gcode`` module puts its straight feeds on the curve at
+u = umax i / (15 (n + 1)); this module's points there agree to 3e-14 mm for orders
+3, 4 and 5 with uneven weights, ``tests/test_nurbs.py``) the knot vector is the
+clamped uniform one with integer knots: for ``n + 1`` control points and order
+``k`` (degree ``k - 1``)
 
     0 (k times), 1, 2, ..., n - k + 1, n - k + 2 (k times)
 
