@@ -147,11 +147,11 @@ def test_export_refuses_to_overwrite_input(tmp_path: Path) -> None:
 def test_corrections_on_unsupported_program_are_refused(tmp_path: Path) -> None:
     csv = tmp_path / "c.csv"
     csv.write_text("k,dx,dy,dz\n0,0.01,0,0\n")
-    src = tmp_path / "nurbs.ngc"
-    src.write_text("G21 G90 G17\nG0 X0 Y0 Z0\nG1 X1 F600\nG5.2 X0 Y1 P1 L3\nX2 Y5 P1\nX5 Y5 P1\nG5.3\nM30\n")
+    src = tmp_path / "cubic.ngc"  # (G5.1 and G5.2 NURBS blocks are modelled since; the G5 cubic spline is not)
+    src.write_text("G21 G90 G17\nG0 X0 Y0 Z0\nG1 X1 F600\nG5 X5 Y5 I1 J0 P-1 Q0\nM30\n")
     r = _cli("export", str(src), "--out", str(tmp_path / "o.ngc"), "--corrections", str(csv))
     assert r.returncode == 1
-    assert "nurbs.ngc:4:" in r.stderr and "G5.2 NURBS is not modelled" in r.stderr
+    assert "cubic.ngc:4:" in r.stderr and "G5 cubic spline is not modelled" in r.stderr
     assert not (tmp_path / "o.ngc").exists()
     # systems.ngc is read since G5.1 splines are: its command 0 (line 14) ends where the spline on line 15 starts,
     # so the writer refuses its correction on its own line (before: when the spline's start could not follow)
@@ -258,8 +258,8 @@ def test_a_correction_may_not_move_an_arc_start_off_its_circle(tmp_path: Path) -
 
 def test_a_copy_of_a_program_the_interpreter_stops_in_says_so(tmp_path: Path) -> None:
     """Issue 21 item 3: export copies what it cannot interpret, byte for byte, and says so on stderr."""
-    src = tmp_path / "m98.ngc"  # (M98 subprograms and G5.1 are modelled since; the G5.2 NURBS is not)
-    src.write_bytes(b"G21 G90\r\nG0 X0 Y0 Z5\r\nG5.2 X2 Y2 P1 L3\r\nM98 P100\r\nG1 X1 F100\r\nM30\r\nO100\r\n"
+    src = tmp_path / "m98.ngc"  # (M98 subprograms, G5.1 and G5.2 are modelled since; the G5 cubic spline is not)
+    src.write_bytes(b"G21 G90\r\nG0 X0 Y0 Z5\r\nG5 X2 Y2 I1 J0 P1 Q0\r\nM98 P100\r\nG1 X1 F100\r\nM30\r\nO100\r\n"
                     b"G1 Y1\r\nM99\r\n")
     out = tmp_path / "copy.ngc"
     res = _cli("export", str(src), "--out", str(out))

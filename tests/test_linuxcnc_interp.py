@@ -73,8 +73,10 @@ pytestmark = pytest.mark.linuxcnc
 SYSTEM_PYTHON = Path("/usr/bin/python3")
 DUMP_SCRIPT = Path(__file__).with_name("lcnc_gcode_dump.py")
 # the samples, and ilcnc's own program of the constructs the samples use once or not at all: work systems turned by
-# G10 L2 R with arcs (I/J, R, G90.1), G91, G92, G10 L20, drilling cycles, G5.1, G53 and polar words in them
-SAMPLES = [*sample_files("gcode", "contour", "interp", "large"), Path(__file__).with_name("data") / "rotated_frames.ngc"]
+# G10 L2 R with arcs (I/J, R, G90.1), G91, G92, G10 L20, drilling cycles, G5.1, G53 and polar words in them; and
+# G5.2/G5.3 NURBS blocks (orders 3 and 4, weights, in a turned and shifted work system)
+SAMPLES = [*sample_files("gcode", "contour", "interp", "large"),
+           *(Path(__file__).with_name("data") / name for name in ("rotated_frames.ngc", "nurbs.ngc"))]
 TIMEOUT_S = 120
 
 KIND_NAMES = {0: "G0", 1: "G1", 2: "G2", 3: "G3", 9: "other motion"}
@@ -674,15 +676,17 @@ def _check(path: Path, lcnc: LinuxCNC, request: pytest.FixtureRequest, *, only_f
         )
 
 
-_G5_1 = re.compile(r"[Gg]\s*0*5\s*\.\s*1(?![0-9])")
+# the lines whose moves are a curve's chords: G5.1, and G5.3, which ends a NURBS block (LinuxCNC reports the curve there)
+_CURVE_LINE = re.compile(r"[Gg]\s*0*5\s*\.\s*[13](?![0-9])")
 
 
 def _split_splines(prog: Program, mine: Motion, theirs: Motion, src: list[str], oracle: str
                    ) -> tuple[Motion, Motion, list[str]]:
-    """Take the moves of G5.1 lines out of the one-to-one comparison and check them apart.
+    """Take the moves of G5.1 and G5.3 lines out of the one-to-one comparison and check them apart.
 
-    ilcnc follows a quadratic spline through chords within ``SPLINE_CHORD_MM`` of the curve; LinuxCNC makes its
-    own pieces (rs274 prints one NURBS_FEED, the gcode module straight feeds on the curve), so the counts differ.
+    ilcnc follows a quadratic spline or a NURBS curve through chords within ``SPLINE_CHORD_MM`` of the curve;
+    LinuxCNC makes its own pieces (rs274 prints one NURBS_FEED, the gcode module straight feeds on the curve: for a
+    NURBS block 15 per control point, on the G5.3 line), so the counts differ.
     Every point LinuxCNC ends a piece at must lie on ilcnc's chords of that line, within the chords' distance
     from the curve plus the 4 decimals rs274 prints (or the last bits of the gcode module's doubles)."""
     from ilcnc.program.gcode import SPLINE_CHORD_MM
@@ -690,7 +694,7 @@ def _split_splines(prog: Program, mine: Motion, theirs: Motion, src: list[str], 
 
     mv = prog.moves
     spline_lines = np.unique(mv.line[(mv.flags & FLAG_DERIVED) != 0])
-    spline_lines = np.array([ln for ln in spline_lines.tolist() if _G5_1.search(src[ln - 1])], dtype=np.int64)
+    spline_lines = np.array([ln for ln in spline_lines.tolist() if _CURVE_LINE.search(src[ln - 1])], dtype=np.int64)
     if not spline_lines.size:
         return mine, theirs, []
     problems: list[str] = []
@@ -706,7 +710,7 @@ def _split_splines(prog: Program, mine: Motion, theirs: Motion, src: list[str], 
             t = np.clip(np.einsum("ij,ij->i", p - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-30), 0.0, 1.0)
             dist = float(np.min(np.hypot(*(a + t[:, None] * d - p).T)))
             if dist > tol:
-                problems.append(f"{oracle}: G5.1 line {ln}: LinuxCNC's point {p.tolist()} is {dist * 1e3:.4f} µm from"
+                problems.append(f"{oracle}: curve on line {ln}: LinuxCNC's point {p.tolist()} is {dist * 1e3:.4f} µm from"
                                 f" ilcnc's chords (tolerance {tol * 1e3:.4f} µm)   <- {src[ln - 1].strip()!r}")
                 break
     keep_mine = ~np.isin(mine.line, spline_lines)

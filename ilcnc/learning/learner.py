@@ -84,7 +84,7 @@ FROZEN_FLAGS = FLAG_REPEATED | FLAG_POLAR | FLAG_MACHINE | FLAG_HOME | FLAG_DERI
 
 #: Why a command is never corrected, per flag of :data:`FROZEN_FLAGS` (the first that applies names it).
 FROZEN_REASONS = (
-    (FLAG_POSITION_READ, "end point read by the next block (G92, G10 L20, G28.1, a cycle, G5.1, #5420, polar, CC)"),
+    (FLAG_POSITION_READ, "end point read by the next block (G92, G10 L20, G28.1, a cycle, G5.1, G5.2, #5420, polar, CC)"),
     (FLAG_REPEATED, "repeated"),
     (FLAG_POLAR, "polar"),
     (FLAG_MACHINE, "machine coordinates"),

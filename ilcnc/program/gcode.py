@@ -60,6 +60,7 @@ from ilcnc.program.model import (
     decode_source,
     looks_binary,
 )
+from ilcnc.program.nurbs import NurbsBlock
 from ilcnc.units import MM_PER_INCH
 
 __all__ = ["detect_dialect", "read_gcode"]
@@ -80,7 +81,7 @@ _KNOWN_G = _MOTION | _GROUP0 | {
     970, 980, 990, 70, 80, 150, 160,
 }
 _UNSUPPORTED_G = {
-    50: "G5 cubic spline", 52: "G5.2 NURBS", 53: "G5.3 NURBS",
+    50: "G5 cubic spline",
     70: "G7 lathe diameter mode", 80: "G8 lathe radius mode", 150: "G15 polar mode", 160: "G16 polar mode",
     330: "G33 spindle-synchronised motion", 331: "G33.1 rigid tapping", 382: "G38.2 probing",
     383: "G38.3 probing", 384: "G38.4 probing", 385: "G38.5 probing",
@@ -94,9 +95,10 @@ _UNSUPPORTED_G = {
 # miss the end radius by 0.02*sqrt(2) mm (mm programs) or 0.001*sqrt(2) inch (model.arc_off_circle), R-format
 # arcs may be short of the half chord by 0.00127 mm (0.00005 inch) before they are refused.
 _RADIUS_TOLERANCE_MM = 0.00127
-#: Largest distance of a G5.1 spline's chords from the curve, mm (the moves the reader generates for it).
+#: Largest distance of a G5.1 spline's or a G5.2 NURBS curve's chords from the curve, mm (the moves the reader
+#: generates for it).
 SPLINE_CHORD_MM = 1e-4
-#: Most chords of one G5.1 spline (a curve that needs more is refused with its line).
+#: Most chords of one G5.1 spline or G5.2 NURBS curve (a curve that needs more is refused with its line).
 MAX_SPLINE_CHORDS = 100_000
 
 
@@ -140,6 +142,7 @@ class _Interpreter:
         self.ended = False
         self.axis_warned = False
         self.polar_words: tuple[float | None, float | None] = (None, None)
+        self.nurbs: NurbsBlock | None = None  # an open G5.2 block
 
     def error(self, line: int, problem: str) -> Unmodelled:
         """A block the interpreter refuses (as LinuxCNC would): stops the interpretation."""
@@ -175,6 +178,9 @@ class _Interpreter:
             else:
                 letters[w.letter] = w
         line = blk.line
+        if self.nurbs is not None:
+            self._nurbs_line(blk, letters, gcodes, mcodes)
+            return
         for code in gcodes:
             if code in _UNSUPPORTED_G:
                 raise Unmodelled(line, f"{_UNSUPPORTED_G[code]} is not modelled")
@@ -281,6 +287,13 @@ class _Interpreter:
                     if w is not None:
                         st.g92[i] = w.value * st.unit
                 self._save_g92(True)
+        if motion_codes and motion_codes[0] in (52, 53):
+            if motion_codes[0] == 53:
+                raise self.error(line, "cannot use G5.3 without G5.2 first (no NURBS block is open)")
+            self._nurbs_open(letters, axis_words, line, machine)
+            st.motion = 800
+            self._assign(blk)
+            return
         prev_motion = st.motion
         if motion_codes:
             st.motion = motion_codes[0]
@@ -688,8 +701,8 @@ class _Interpreter:
             block needs the general interpreter (which then judges it).
         """
         st = self.st
-        if st.rotation() != 0.0:
-            return 0  # a rotated work system: the general interpreter turns the words block by block
+        if st.rotation() != 0.0 or self.nurbs is not None:
+            return 0  # a rotated work system (the words turned block by block) or a NURBS block's control points
         count = nums.shape[0]
         vals = nums[:, 0:3]
         cvals = nums[:, 3:6]
@@ -865,6 +878,65 @@ class _Interpreter:
             length = math.dist(st.pos, (x, y, z))
             self._add(MOVE_LINE, line, (float(x), float(y), z), flags=flags | FLAG_DERIVED, words=none3, offset=off,
                       feed=self._feed_mm_min(length, line, letters))
+
+    def _nurbs_open(self, letters: dict[str, Word], axis_words: list[Word | None], line: int, machine: bool) -> None:
+        """``G5.2 [X Y P] [L]``: open a NURBS block whose first control point is the current point
+        (:class:`~ilcnc.program.nurbs.NurbsBlock` says how LinuxCNC reads it). The control points are not commands:
+        one is off the path and moving it bends the curve over several knot spans, not at a point."""
+        st = self.st
+        if machine:
+            raise self.error(line, "G53 is only allowed with G0 or G1")
+        if st.plane != PLANE_XY:
+            raise Unmodelled(line, "G5.2 outside the XY plane (G17) is not modelled (LinuxCNC reads it without an"
+                                   " error; its reference gives the XY plane)")
+        if st.feed_mode != 940:
+            raise Unmodelled(line, f"G5.2 in feed mode G{st.feed_mode / 10:g} is not modelled")
+        if st.feed <= 0:
+            raise self.error(line, "cannot make a NURBS with zero feed rate (no F word before)")
+        if st.cutter_comp:
+            raise Unmodelled(line, "G5.2 with cutter radius compensation is not modelled")
+        if not st.absolute:
+            # measured: rs274 measures every control point from the curve's start, not from the point before
+            raise Unmodelled(line, "G5.2 in incremental distance mode (G91) is not modelled")
+        order, weight, has_xy = NurbsBlock.open_words(letters, line)
+        nb = NurbsBlock(line, order, st.offset(), FLAG_DERIVED)
+        nb.points.append((st.pos[0], st.pos[1]))
+        nb.weights.append(1.0 if has_xy else weight)
+        if has_xy:
+            t = self._target(axis_words, nb.offset, False)
+            nb.points.append((t[0], t[1]))
+            nb.weights.append(weight)
+        self.nurbs = nb
+
+    def _nurbs_line(self, blk: Block, letters: dict[str, Word], gcodes: list[int], mcodes: list[int]) -> None:
+        """A line inside an open G5.2 block: a control point ``X Y P``, or ``G5.3``, which moves along the curve
+        through chords within :data:`SPLINE_CHORD_MM` (``FLAG_DERIVED``: never commands), reported on the G5.3 line
+        as LinuxCNC reports them; anything else is not modelled."""
+        nb = self.nurbs
+        assert nb is not None
+        line = blk.line
+        if mcodes or blk.polar or (gcodes and gcodes != [53]):
+            what = "the program's end" if any(m in (2, 30) for m in mcodes) else "a G or M code or polar words"
+            raise Unmodelled(line, f"{what} inside the G5.2 NURBS block of line {nb.line} (before its G5.3) is not"
+                                   " modelled")
+        if gcodes:
+            if set(letters) - {"N"}:
+                raise Unmodelled(line, "G5.3 with words other than N is not modelled")
+            pts = nb.chord_ends(line, SPLINE_CHORD_MM, MAX_SPLINE_CHORDS)
+            self.nurbs = None
+            st = self.st
+            z = st.pos[2]
+            none3: list[Word | None] = [None, None, None]
+            for x, y in pts.tolist():
+                self._add(MOVE_LINE, line, (x, y, z), flags=nb.flags, words=none3, offset=nb.offset,
+                          feed=st.feed * st.unit)
+        else:
+            weight = nb.point_words(letters, line)
+            if weight is not None:
+                t = self._target([letters["X"], letters["Y"], None], nb.offset, False)
+                nb.points.append((t[0], t[1]))
+                nb.weights.append(weight)
+        self._assign(blk)
 
     def _arc(self, motion: int, letters: dict[str, Word], axis_words: list[Word | None], target: list[float],
              off: tuple[float, float, float], line: int, blk: Block, flags: int) -> None:
@@ -1106,6 +1178,9 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
 def _finish(p: Path, text: str, interp: _Interpreter, unsupported: tuple[int, str] | None, default_units: str,
             dialect: str | None) -> Program:
     units = interp.st.units_seen or default_units
+    if interp.nurbs is not None and unsupported is None:
+        # LinuxCNC drops a block M2 ends (measured) and refuses a file that ends without M2 or %
+        unsupported = (interp.nurbs.line, "the G5.2 NURBS block is not closed by G5.3 before the program ends")
     dial = dialect or detect_dialect(p, text)
     return Program(path=p, text=text, dialect=dial, units=units, moves=interp.builder.build(), name=p.stem,
                    warnings=interp.warnings, unsupported=unsupported, span_resolver=resolve_fast_spans)

@@ -31,14 +31,14 @@ def position_reader(gcodes: list[int], l_word: float | None, axis_words: bool, m
                     parameter_read: bool) -> str | None:
     """What in one block reads the tool's current position before the block moves, as LinuxCNC's interpreter does
     (its G-code reference: "Coordinate Systems", "G92", "G10 L20", "G28.1", "Canned Cycles", "G5.1", "Polar
-    Coordinates", "Numbered Parameters" #5420..#5428); None if nothing does.
+    Coordinates", "G5.2 G5.3 NURBS Block", "Numbered Parameters" #5420..#5428); None if nothing does.
 
     ``gcodes`` are the block's G codes (round(G * 10)), ``l_word`` its L value, ``axis_words`` whether it has axis
     words, ``motion_codes`` its motion G codes and ``motion`` the modal motion before it, ``absolute`` the distance
     mode it runs in (G90), ``polar`` its ``@`` and ``^`` values (None without polar words) and ``parameter_read``
     whether an expression of it read #5420..#5428. Such a block takes the end point of the move before it; when that
     is a corrected G1 the correction would move everything the block sets up (an offset, a stored home, a hole, a
-    spline), so the reader marks that command never to be corrected (``FLAG_POSITION_READ``).
+    spline, a NURBS curve), so the reader marks that command never to be corrected (``FLAG_POSITION_READ``).
     """
     if parameter_read:
         return "#5420..#5428 read the current position"
@@ -57,6 +57,8 @@ def position_reader(gcodes: list[int], l_word: float | None, axis_words: bool, m
         return f"canned cycle G{mode / 10:g} starts from the current position (its retract, initial level, hole)"
     if mode == 51 and axis_words:
         return "G5.1 starts its spline at the current position"
+    if 52 in motion_codes:
+        return "G5.2 takes the current position as its NURBS curve's first control point"
     if polar is not None and (not absolute or None in polar):
         return "a polar move measured from the current position"
     return None
