@@ -195,3 +195,27 @@ def test_export_refuses_a_correction_of_a_command_whose_end_point_the_next_block
     other[int(np.flatnonzero(prog.command_line == 5)[0])] = (0.01, 0.0, 0.0)
     text, _edits = apply_corrections(prog, other)  # the command after the G92 takes one
     assert "X5.01" in text
+
+
+def test_a_measured_step_reports_its_frozen_commands_as_the_virtual_learning_does(tmp_path) -> None:
+    # a log of the program (the virtual CNC stands in for the machine), then one measured step: the G1 the G92 reads
+    # is counted with its reason in the JSON, as learn's virtual run counts it (before: frozen_commands 0)
+    import json
+    import subprocess
+    import sys
+
+    src = tmp_path / "part.ngc"
+    src.write_text(HEAD + SQUARE + "G92 X0 Y0\n" + SQUARE + "M2\n")
+    run = [sys.executable, "-m", "ilcnc"]
+    log = tmp_path / "run0.csv"
+    r = subprocess.run([*run, "simulate", str(src), "--profile", str(PROFILE), "--log-out", str(log)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([*run, "learn", str(src), "--profile", str(PROFILE), "--log", str(log), "--state",
+                        str(tmp_path / "st"), "--out", str(tmp_path / "p1.ngc"), "--json"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    measured = json.loads(r.stdout)
+    virtual = learn_virtual(read_program(src), load_profile(PROFILE), iterations=1)
+    assert measured["frozen_commands"] == virtual.frozen >= 1
+    assert measured["frozen_reasons"] == dict(virtual.frozen_reasons)

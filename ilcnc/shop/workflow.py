@@ -39,6 +39,7 @@ from ilcnc.learning.learner import (
     Clip,
     IterationRecord,
     Learner,
+    frozen_reasons,
     learn_virtual,
     model_assisted_correction,
     program_with_corrections,
@@ -765,7 +766,12 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     message = (f"iteration {entry.iteration} measured ({meas.kind}): max {meas.stats['max'] * 1e3:.2f} µm, RMS"
                f" {meas.stats['rms'] * 1e3:.2f} µm; wrote iteration {nxt}: run {req.out.name} on the machine and"
                " measure it next")
-    return _measured_outcome(req, state, status, message, out, clips, notes, meas)
+    oc = _measured_outcome(req, state, status, message, out, clips, notes, meas)
+    # the commands this step left as programmed, counted as the virtual learning counts them (air moves apart)
+    air = learner.air_kept if learner.air_kept is not None else np.zeros(original.n_commands, bool)
+    oc.frozen = int(np.count_nonzero(~learner.shaper.correctable & ~air))
+    oc.frozen_reasons = dict(frozen_reasons(original, air))
+    return oc
 
 
 def _rewrite_interrupted_output(req: LearnRequest, state: LearnState, used: IterationEntry,
