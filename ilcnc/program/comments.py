@@ -6,7 +6,7 @@ conversion): the words are what is left when the comments are blanked out, so ev
 
 from __future__ import annotations
 
-__all__ = ["split_gcode_comments"]
+__all__ = ["comment_first_line", "split_gcode_comments"]
 
 
 def split_gcode_comments(s: str, *, lenient: bool = False) -> tuple[str | None, list[str]]:
@@ -37,3 +37,38 @@ def split_gcode_comments(s: str, *, lenient: bool = False) -> tuple[str | None, 
         out.append(ch)
         i += 1
     return "".join(out), texts
+
+
+def comment_first_line(text: str, note: str, *, klartext: bool = False) -> str:
+    """``note`` as a comment at the end of the first line that is neither blank nor ``%``; no line moves.
+
+    Klartext: ``; note``. G-code: `` note`` after a line that already ends in a ``;`` comment (a ``;`` outside
+    parentheses; one inside ``( )`` is comment text), else `` (note)``.
+    """
+    lines = text.split("\n")
+    for i, line in enumerate(lines):
+        body = line.rstrip("\r")
+        if not body.strip() or body.strip() == "%":
+            continue
+        eol = line[len(body):]
+        if klartext:
+            lines[i] = f"{body} ; {note}{eol}"
+        elif _has_semicolon_comment(body):
+            lines[i] = f"{body} {note}{eol}"
+        else:
+            lines[i] = f"{body} ({note}){eol}"
+        break
+    return "\n".join(lines)
+
+
+def _has_semicolon_comment(body: str) -> bool:
+    """True when the line ends in a ``;`` comment (a ``;`` outside parentheses)."""
+    depth = 0
+    for ch in body:
+        if ch == "(":
+            depth += 1
+        elif ch == ")":
+            depth = max(depth - 1, 0)
+        elif ch == ";" and depth == 0:
+            return True
+    return False

@@ -183,15 +183,6 @@ def apply_corrections(
             return _assemble(program, list(extra_edits))
         none = np.zeros(0, dtype=np.int64)
         return program.text, Edits(none, none, none, b"", none, none)
-    # a command whose end point the next block reads (G92, G10 L20, a cycle, G5.1/G5.2, polar: FLAG_POSITION_READ,
-    # FLAG_POLAR) would carry its correction into every later move: refused, never written
-    held = (mv.flags[program.command_moves] & (FLAG_POSITION_READ | FLAG_POLAR)) != 0
-    bad = np.flatnonzero(held & np.any(corr != 0.0, axis=1))
-    if bad.size:
-        k = int(bad[0])
-        raise CorrectionError(program.path, int(program.command_line[k]),
-                              f"command k={k} cannot take a correction: the next block reads its end point (or it is"
-                              " polar), so every later move would shift with it")
     desired = mv.end_mm.copy()
     desired[program.command_moves] += corr
     changed = np.zeros(m, dtype=bool)
@@ -246,6 +237,15 @@ def _rewrite_ends(program: Program, desired: NDArray[np.float64], changed: NDArr
     """The rewrite both entry points share: moves ``changed`` end at ``desired``, every other move keeps its
     absolute end point."""
     mv = program.moves
+    # a move whose end point the next block reads (G92, G10 L20, a cycle, G5.1/G5.2: FLAG_POSITION_READ) or that
+    # is polar would carry its change into every later move: refused, never written
+    bad = np.flatnonzero(changed & ((mv.flags & (FLAG_POSITION_READ | FLAG_POLAR)) != 0))
+    if bad.size:
+        i = int(bad[0])
+        who = f"command k={int(mv.command[i])}" if mv.command[i] >= 0 else "this move"
+        raise CorrectionError(program.path, int(mv.line[i]),
+                              f"{who} cannot take a correction: the next block reads its end point (or it is"
+                              " polar), so every later move would shift with it")
     m = len(mv)
     klartext = program.dialect == "heidenhain"
     realized = mv.end_mm.copy()

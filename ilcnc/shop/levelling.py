@@ -33,6 +33,7 @@ from ilcnc.errors import InputError
 from ilcnc.fileio import read_bytes, same_file, write_atomic
 from ilcnc.program import read_program
 from ilcnc.program.arcsplit import split_arcs
+from ilcnc.program.comments import comment_first_line
 from ilcnc.program.insert import insert_points, required_decimals, reread
 from ilcnc.program.model import (
     FLAG_DERIVED,
@@ -132,23 +133,6 @@ def find_level_stamp(text: str) -> dict[str, Any] | None:
         if m:
             return {"name": m["name"], "sha": m["sha"], "line": i}
     return None
-
-
-def _stamp(text: str, note: str) -> str:
-    """``note`` as a comment at the end of the first line that is not ``%`` or blank (no line moves)."""
-    lines = text.split("\n")
-    for i, line in enumerate(lines):
-        body = line.rstrip("\r")
-        if not body.strip() or body.strip() == "%":
-            continue
-        eol = line[len(body):]
-        depth, semi = 0, False
-        for ch in body:
-            depth = depth + 1 if ch == "(" else max(depth - 1, 0) if ch == ")" else depth
-            semi = semi or (ch == ";" and depth == 0)
-        lines[i] = f"{body} {note}{eol}" if semi else f"{body} ({note}){eol}"
-        break
-    return "\n".join(lines)
 
 
 def _eligible(program: Program) -> NDArray[np.bool_]:
@@ -363,7 +347,7 @@ def level_program(program_path: str | Path, map_path: str | Path, out: str | Pat
         arc_err[n] = arc_height_error_mm(hmap, c, r, a0, sweep, float(dz[i - 1] + ref_h), float(dz[i] + ref_h))
     text, _edits = apply_move_ends(program, ends, min_decimals=min_dec)
     note = f"ilcnc: levelled with {map_p.name.replace(' ', '_')} sha256:{hmap.sha256[:16]}"
-    text = _stamp(text, note)
+    text = comment_first_line(text, note)
     written = write_atomic(out_p, text.encode("latin-1"), protect=(prog_p, map_p))
     over = int(np.count_nonzero(arc_err > tolerance_mm))
     if over:

@@ -51,6 +51,7 @@ from ilcnc.outcomes import GuardVerdict, LearnMode, LearnStatus
 from ilcnc.profile.load import load_profile
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program import read_program
+from ilcnc.program.comments import comment_first_line
 from ilcnc.program.model import Program
 from ilcnc.shop.measure import path_position_mm
 from ilcnc.shop.state import IterationEntry, LearnState, sha256_bytes, state_lock
@@ -80,33 +81,7 @@ def stamp_text(text: str, dialect: str, *, name: str, sha256: str, iteration: in
     of the stamped program still match the original's lines.
     """
     note = f"ilcnc: learned from {name.replace(' ', '_')} sha256:{sha256[:16]} iteration {iteration}"
-    lines = text.split("\n")
-    for i, line in enumerate(lines):
-        body = line.rstrip("\r")
-        if not body.strip() or body.strip() == "%":
-            continue
-        eol = line[len(body):]
-        if dialect == "heidenhain":
-            lines[i] = f"{body} ; {note}{eol}"
-        elif _has_semicolon_comment(body):
-            lines[i] = f"{body} {note}{eol}"
-        else:
-            lines[i] = f"{body} ({note}){eol}"
-        break
-    return "\n".join(lines)
-
-
-def _has_semicolon_comment(body: str) -> bool:
-    """True when the line ends in a ``;`` comment (a ``;`` outside parentheses; one inside ``( )`` is comment text)."""
-    depth = 0
-    for ch in body:
-        if ch == "(":
-            depth += 1
-        elif ch == ")":
-            depth = max(depth - 1, 0)
-        elif ch == ";" and depth == 0:
-            return True
-    return False
+    return comment_first_line(text, note, klartext=dialect == "heidenhain")
 
 
 def unstamp_text(text: str) -> str:
