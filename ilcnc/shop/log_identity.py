@@ -374,7 +374,8 @@ def _check_not_earlier(ref: NDArray[np.float64], hint: NDArray[np.int64], ran: P
     made to bring them back onto the drawing, so the log of a corrected program lies nearer the original's
     path there (measured: compass's first 60 lines on example-mill's filter planner, 2.0 µm from its own
     path, 0.3 µm from the original's). A sample votes for the program whose path is nearer by more than
-    ``tol``; more than twice as many votes for an earlier program, and at least :data:`MIN_VOTES`, refuse.
+    ``tol`` and lies on it (within ``tol``); more than twice as many votes for an earlier program, and at least
+    :data:`MIN_VOTES`, refuse.
     """
     from ilcnc.contour.search import contour_error
 
@@ -388,8 +389,10 @@ def _check_not_earlier(ref: NDArray[np.float64], hint: NDArray[np.int64], ran: P
             continue
         d_ran = contour_error(path, ref[sel], hint[sel]).dist_mm
         d_old = contour_error(PathGeometry.from_moves(prog.moves, include_rapids=True), ref[sel], hint[sel]).dist_mm
-        old_wins = int(np.sum(d_old < d_ran - tol))
-        ran_wins = int(np.sum(d_ran < d_old - tol))
+        # a sample votes only where it lies on one of the two paths: inside a blend it is off both, and which
+        # it is nearer to there depends on how the corrections moved the corner, not on which program ran
+        old_wins = int(np.sum((d_old <= tol) & (d_old < d_ran - tol)))
+        ran_wins = int(np.sum((d_ran <= tol) & (d_ran < d_old - tol)))
         if old_wins >= MIN_VOTES and old_wins > 2 * ran_wins:
             raise LogError(src, None, f"the log's commanded positions fit {what} better than {ran.path.name}, which"
                            f" the state says ran last (nearer on {old_wins} of the {int(sel.sum())} samples where the"

@@ -33,6 +33,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'planned_duration_s'
     ),
     'plan_base': ('EPS_MM', 'MAX_RUN_SAMPLES', 'PlanLimits', 'check_run_length', 'move_directions', 'nominal_speed_mm_s'),
+    'plan_corners': ('RoundingTables', 'junction_speeds', 'rounding_tables'),
     'plan_kernels': ('BLOCK_SAMPLES', 'arc_table', 'group_kernel', 'group_range', 'group_state'),
     'plan_tp': (
         'ACC_RATIO_NORMAL', 'ACC_RATIO_TANGENTIAL', 'BLEND_DIST_FRACTION', 'GAP_CYCLES', 'KINK_RATIO',

@@ -23,10 +23,13 @@ and any acceleration jump ``da`` into a jerk ``da/T``; so the acceleration
 and jerk of every axis are bounded by construction, the feed is never forced
 to zero between short CAM segments (the filter averages over many of them)
 and the whole plan is a few running sums per sample. Corners are rounded by the filters; the
-corner speed is chosen so that the rounding stays within the corner
-tolerance (like LinuxCNC's ``G64 P``): for two filters the distance of the
-rounded corner from the vertex is ``v·|Δu|·(T1/8 + T2²/(24·T1))``. Arcs and
-densely segmented curves shrink by ``v²(T1²+T2²)/(24R)``; their speed is
+speed through each junction is chosen so that the rounding stays within the corner
+tolerance (like LinuxCNC's ``G64 P``) and the acceleration within the axes' limits, both
+computed from every direction change within the filters' span
+(:mod:`ilcnc.vcnc.plan_corners`): a corner alone is rounded by ``v·|Δu|·E[τ⁺]``
+(``T/8 + t²/(24·T)`` for two filters, ``T`` the longer), a densely segmented curve
+shrinks as its arc, and a chain of small kinks that alternate (a corrected line) by
+what the filters leave of them. Arcs shrink by ``v²(T1²+T2²)/(24R)``; their speed is
 limited the same way, and by the centripetal acceleration ``v²/R``.
 
 After filtering, every axis's velocity, acceleration and jerk are checked on
@@ -127,6 +130,7 @@ from ilcnc.program.model import (
     MoveTable,
 )
 from ilcnc.vcnc.plan_base import EPS_MM, PlanLimits, check_run_length, move_directions, nominal_speed_mm_s
+from ilcnc.vcnc.plan_corners import junction_speeds, rounding_tables
 from ilcnc.vcnc.plan_kernels import BLOCK_SAMPLES, arc_table, group_kernel, group_range, group_state
 
 __all__ = [
@@ -148,6 +152,9 @@ _TICK_SLACK = 1e-9
 #: Largest corner tolerance a program can set (G64, G64 P), as a fraction of the shorter adjoining move:
 #: LinuxCNC's own bound (``tcFindBlendTolerance``, tolerance_ratio 0.25).
 _BLEND_LENGTH_FRACTION = 0.25
+#: A junction whose turn alone would round the path by at most this fraction of its tolerance is a point on a
+#: line, not a corner (:func:`_corner_limits`).
+_OWN_TURN = 0.01
 
 
 
@@ -746,8 +753,11 @@ def _position_on_moves(moves: MoveTable, mv: NDArray[np.int64], frac: NDArray[np
     return pos
 
 
-#: Direction change (|u2 - u1|) below which a junction of two straight moves is straight: the moves are one line.
-_COLLINEAR = 1e-9
+#: How far, at most, the point between two straight moves may lie from the line through their far ends for
+#: the two to be one line, mm: 0.1 µm, a tenth of a 1 µm machine resolution. Refinement writes the points it
+#: inserts on a line exactly on it where the decimal grid allows, else within 0.05 µm of it
+#: (:data:`ilcnc.program.insert.POINT_TOLERANCE_MM`); a learned correction moves a point by a resolution step.
+_COLLINEAR_MM = 1e-4
 
 
 def _straight_joins(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], hold: NDArray[np.float64]
@@ -757,9 +767,13 @@ def _straight_joins(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], ho
     if idx.shape[0] < 2:
         return np.zeros(0, dtype=np.bool_)
     du = np.linalg.norm(geo.t_in[idx[1:]] - geo.t_out[idx[:-1]], axis=1)
+    seg = np.linalg.norm(moves.end_mm[idx] - moves.start_mm[idx], axis=1)
+    la, lb = seg[:-1], seg[1:]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        offset = du * np.where(la + lb > 0, la * lb / (la + lb), 0.0)  # the point's distance from the line
     arc = moves.kind[idx] >= MOVE_ARC_CW
     still = hold > 0.0
-    return (du <= _COLLINEAR) & ~arc[:-1] & ~arc[1:] & ~still[:-1] & ~still[1:]
+    return (offset <= _COLLINEAR_MM) & ~arc[:-1] & ~arc[1:] & ~still[:-1] & ~still[1:]
 
 
 def _chain_ids(join: NDArray[np.bool_]) -> NDArray[np.int64] | None:
@@ -823,7 +837,7 @@ def _junction_tolerances(blend_tol: NDArray[np.float64], default_tol_mm: float, 
 
 def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.float64],
                    t_in: NDArray[np.float64], t_out: NDArray[np.float64], limits: PlanLimits, default_tol_mm: float,
-                   filt_s: tuple[float, ...], v_nom: NDArray[np.float64],
+                   lengths: tuple[int, ...], period_s: float, v_nom: NDArray[np.float64],
                    still: NDArray[np.bool_], join: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Speed limits at each junction inside a group (between idx[i] and idx[i+1]) and per move (arcs).
 
@@ -840,10 +854,8 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
     v_move : ndarray (len(idx),)
         Largest speed on each move from its own curvature, mm/s.
     """
-    t1 = filt_s[0] if filt_s else 0.0
-    t_rest = filt_s[1:] if len(filt_s) > 1 else ()
-    # first moment of the filter kernel (one side) and its variance, per unit speed
-    dev_per_v = (t1 / 8.0 + sum(t * t for t in t_rest) / (24.0 * t1)) if t1 > 0 else 0.0
+    filt_s = tuple(k * period_s for k in lengths)
+    t1 = max(filt_s) if filt_s else 0.0
     var_t2 = sum(t * t for t in filt_s) / 12.0  # variance of the summed uniform kernels, s^2
     acc_min = float(np.min(limits.acceleration_mm_s2))
     jerk_min = float(np.min(limits.jerk_mm_s3))
@@ -894,30 +906,22 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
     before_len, after_len = _chain_lengths(seg_len, join)
     tol_j, stop = _junction_tolerances(blend_g, default_tol_mm, seg_len, before_len, after_len)
     vj = np.full(n - 1, np.inf)
-    # corner rounding by the filters stays within the tolerance; an exact path stops where the direction changes
-    if dev_per_v > 0:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            vj = np.where(tol_j > 0, np.where(du > 1e-12, tol_j / (du * dev_per_v), np.inf),
-                          np.where(du > 1e-9, 0.0, np.inf))
-        vj = np.where(stop, 0.0, vj)
-    # velocity jump of every axis within what the first filter turns into its acceleration limit
     if t1 > 0:
-        dua = np.abs(u2 - u1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            va = np.where(dua > 1e-12, limits.acceleration_mm_s2[None, :] * t1 / dua, np.inf)
-        vj = np.minimum(vj, va.min(axis=1))
-    # densely segmented curves act like arcs: curvature from the turn over the mean segment length
-    curve = tol_j > 0
-    if var_t2 > 0 and curve.any():
-        seg = 0.5 * (before_len + after_len)
-        kappa = du / np.maximum(seg, _EPS)
-        with np.errstate(divide="ignore", invalid="ignore"):  # 0 / 0 at exact-path junctions, masked below
-            v_curve = np.where(kappa > 1e-12, np.sqrt(2.0 * tol_j / (kappa * var_t2)), np.inf)
-            v_cent = np.where(kappa > 1e-12, np.sqrt(acc_min / kappa), np.inf)
-        # only where the segments are shorter than the distance covered during the filter span
-        v_pair = np.minimum(v_nom[:-1], v_nom[1:])
-        short = curve & (seg < v_pair * sum(filt_s))
-        vj = np.where(short, np.minimum(vj, np.minimum(v_curve, v_cent)), vj)
+        # the filters' rounding and acceleration at each junction, from the direction changes within their span
+        # (ilcnc.vcnc.plan_corners); an exact path stops where the direction changes, G61.1 at every junction
+        blend = (tol_j > 0) & ~stop
+        if blend.any():
+            alone = still[:-1] | still[1:]
+            tables = rounding_tables(lengths, period_s)
+            v_pair = np.minimum(v_nom[:-1], v_nom[1:])
+            # a point on a straight line (refinement inserts such points, on the line to within the nm its
+            # decimals allow) is no corner: it takes no speed of its own, as when the line was one move, and
+            # its turn adds next to nothing to the sums. A turn is a corner where, alone, it would round the
+            # path by more than 1 % of the tolerance at the moves' speed
+            corner = ~join & (v_pair * du * tables[0][0] > _OWN_TURN * tol_j)
+            vj = junction_speeds(np.cumsum(length[idx])[:-1], u2 - u1, np.where(blend, tol_j, 0.0),
+                                 np.where(corner, v_pair, np.inf), limits.acceleration_mm_s2, alone, tables)
+        vj = np.where(blend, vj, np.where((du > 1e-9) | stop, 0.0, np.inf))
     return vj, v_move
 
 
@@ -952,7 +956,8 @@ def _group_setup(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], lengt
     lengths = _filter_lengths(mode, vmax_axis, limits, period_s, jerk_tc_s)
     filt_s = tuple(n * period_s for n in lengths)
     join = _straight_joins(moves, geo, idx, hold)
-    vj, v_move = _corner_limits(moves, idx, length, t_in, t_out, limits, default_tol_mm, filt_s, v, hold > 0.0, join)
+    vj, v_move = _corner_limits(moves, idx, length, t_in, t_out, limits, default_tol_mm, lengths, period_s, v,
+                                 hold > 0.0, join)
     v = np.minimum(v, v_move)
     span_s = sum(filt_s)
     chain = _chain_ids(join)

@@ -1,0 +1,182 @@
+"""The speed through each junction of a group: the filters' rounding of the polyline around it.
+
+:mod:`ilcnc.vcnc.plan` smooths the ideal interpolator's motion with moving-average filters (module docstring
+there). At constant speed ``v`` the filtered point at the time the ideal motion passes junction ``i`` differs
+from the junction by
+
+    D_i(v) = v · Σ_j Δu_j · g(|s_j − s_i| / v),        g(δ) = E[(τ − δ)⁺],
+
+summed over the junctions ``j`` within the filters' span (``Δu_j`` the direction change at ``j``, ``s_j`` its
+place on the path, mm; ``τ`` the filters' centred kernel as a distribution of time, s). Its acceleration
+there, per axis, is
+
+    A_i(v) = v · Σ_j Δu_j · ρ(|s_j − s_i| / v),
+
+``ρ`` the kernel's density (1/s). One junction alone gives the familiar rules: ``D = v·|Δu|·E[τ⁺]``
+(``T1/8 + T2²/(24·T1)`` for two filters with ``T1 ≥ T2``) and ``A = v·|Δu|/max(T)``; a polyline dense
+along a curve of radius R gives the arc's shrinking ``v²·Var(τ)/(2R)`` and its centripetal ``v²/R``. A chain
+of small kinks that alternate, such as the corrections learning writes at points inserted on a line, gives
+what the filters make of it: their sum, not the worst kink taken alone. So one rule covers corners, dense
+curves and corrected chains.
+
+Each junction's speed is the largest ``v`` (bisection) at which ``|D_i| ≤`` its tolerance and every
+``|A_i|`` within the axis's acceleration limit. The speeds of the moves around a junction are taken as
+``v`` (the rule is exact at constant speed); the planner's check of the sampled reference against the axes'
+limits catches what a change of speed nearby adds. Arcs add no junction: their own curvature is limited
+per move (:func:`ilcnc.vcnc.plan._corner_limits`). A junction next to a stand-still block (a zero-length
+``G93`` block) is taken alone.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ilcnc._jit import njit
+
+__all__ = ["RoundingTables", "junction_speeds", "rounding_tables"]
+
+#: Bisection steps for a junction's speed: 2⁻⁴⁰ of the moves' own speed.
+_BISECTION_STEPS = 40
+
+RoundingTables = tuple[NDArray[np.float64], NDArray[np.float64], float]
+
+
+def rounding_tables(lengths: tuple[int, ...], period_s: float) -> RoundingTables:
+    """``g(δ)`` and ``ρ(δ)`` of the filters of ``lengths`` samples, on a grid of half a period.
+
+    The kernel of discrete moving averages is a set of weights at multiples of the period (of half of it
+    when its length is even), so ``g`` is piecewise linear with its breaks on that grid: linear
+    interpolation in the table is exact. ``ρ`` is the kernel's weights per second, interpolated linearly.
+
+    Returns
+    -------
+    g_s : ndarray (m,)
+        ``E[(τ − δ)⁺]`` at ``δ = k · step``, s.
+    rho_per_s : ndarray (m,)
+        The kernel's density at ``δ = k · step``, 1/s.
+    step_s : float
+        The grid step, s (half the period).
+    """
+    h = np.ones(1)
+    for n in lengths:
+        h = np.convolve(h, np.full(n, 1.0 / n))
+    tau = (np.arange(h.size) - 0.5 * (h.size - 1)) * period_s
+    step = 0.5 * period_s
+    delta = np.arange(0, h.size + 2) * step
+    g = np.maximum(tau[None, :] - delta[:, None], 0.0) @ h
+    rho = np.interp(delta, tau, h / period_s, left=0.0, right=0.0)
+    last = int(np.flatnonzero((g > 0) | (rho > 0))[-1]) + 2 if np.any((g > 0) | (rho > 0)) else 1
+    return g[:last].copy(), rho[:last].copy(), step
+
+
+@njit(cache=True, nogil=True)
+def _lookup(tab, x):  # pragma: no cover - compiled
+    """Linear interpolation in a table on the grid 0, 1, 2, ... (0 beyond it)."""
+    k = math.floor(x)
+    if k >= tab.shape[0] - 1:
+        return 0.0
+    f = x - k
+    return tab[k] * (1.0 - f) + tab[k + 1] * f
+
+
+@njit(cache=True, nogil=True)
+def _fits(i, v, s_mm, du, tol, acc, alone, g_s, rho, step_s, reach_s, dev, acc_v):  # pragma: no cover - compiled
+    """Whether junction ``i`` passed at ``v`` keeps its rounding within ``tol[i]`` and its acceleration within
+    ``acc``; ``dev`` and ``acc_v`` are scratch (n_axes,)."""
+    n, na = du.shape
+    dev[:] = 0.0
+    acc_v[:] = 0.0
+    scale = 1.0 / (v * step_s)
+    lo = i
+    hi = i
+    if not alone[i]:
+        w = v * reach_s
+        while lo > 0 and tol[lo - 1] > 0.0 and not alone[lo - 1] and s_mm[i] - s_mm[lo - 1] < w:
+            lo -= 1
+        while hi < n - 1 and tol[hi + 1] > 0.0 and not alone[hi + 1] and s_mm[hi + 1] - s_mm[i] < w:
+            hi += 1
+    for j in range(lo, hi + 1):
+        x = abs(s_mm[j] - s_mm[i]) * scale
+        gj = _lookup(g_s, x)
+        rj = _lookup(rho, x)
+        if gj == 0.0 and rj == 0.0:
+            continue
+        for a in range(na):
+            dev[a] += du[j, a] * gj
+            acc_v[a] += du[j, a] * rj
+    d2 = 0.0
+    for a in range(na):
+        d2 += dev[a] * dev[a]
+    if v * math.sqrt(d2) > tol[i]:
+        return False
+    for a in range(na):
+        if v * abs(acc_v[a]) > acc[a]:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _junction_speeds(s_mm, du, tol, v_cap, acc, alone, g_s, rho, step_s, reach_s):  # pragma: no cover - compiled
+    n, na = du.shape
+    out = np.full(n, np.inf)
+    dev = np.zeros(na)
+    acc_v = np.zeros(na)
+    for i in range(n):
+        hi = v_cap[i]
+        if not (tol[i] > 0.0) or not (hi > 0.0) or not math.isfinite(hi):
+            continue
+        if _fits(i, hi, s_mm, du, tol, acc, alone, g_s, rho, step_s, reach_s, dev, acc_v):
+            continue
+        lo = 0.0
+        for _ in range(_BISECTION_STEPS):
+            mid = 0.5 * (lo + hi)
+            if mid <= 0.0:
+                break
+            if _fits(i, mid, s_mm, du, tol, acc, alone, g_s, rho, step_s, reach_s, dev, acc_v):
+                lo = mid
+            else:
+                hi = mid
+        out[i] = lo
+    return out
+
+
+def junction_speeds(s_mm: NDArray[np.float64], du: NDArray[np.float64], tol_mm: NDArray[np.float64],
+                    v_cap_mm_s: NDArray[np.float64], acceleration_mm_s2: NDArray[np.float64],
+                    alone: NDArray[np.bool_], tables: RoundingTables) -> NDArray[np.float64]:
+    """Largest speed through each junction of a group (module docstring).
+
+    Parameters
+    ----------
+    s_mm : ndarray (m,)
+        Place of each junction along the group's path, mm, increasing.
+    du : ndarray (m, n_axes)
+        Direction change at each junction (unit tangent after minus before).
+    tol_mm : ndarray (m,)
+        Largest rounding at each junction, mm; 0 where the axes stop (an exact stop or path, handled by the
+        caller): such a junction gets ``inf`` and bounds the sums of its neighbours (the motion on its other
+        side is not at the neighbours' speed).
+    v_cap_mm_s : ndarray (m,)
+        The speed of the moves at each junction, mm/s: a junction that keeps its limits at this speed
+        gets ``inf`` (no limit of its own).
+    acceleration_mm_s2 : ndarray (n_axes,)
+        Each axis's acceleration limit, mm/s² (inf: none).
+    alone : ndarray (m,) bool
+        Junctions taken alone (next to a stand-still block): neither summed with others nor in their sums.
+    tables : RoundingTables
+        :func:`rounding_tables` of the group's filters.
+
+    Returns
+    -------
+    ndarray (m,)
+        Speed, mm/s (``inf`` where the junction keeps its limits at ``v_cap_mm_s``).
+    """
+    g_s, rho, step_s = tables
+    reach_s = g_s.shape[0] * step_s
+    return _junction_speeds(np.ascontiguousarray(s_mm, dtype=np.float64), np.ascontiguousarray(du, dtype=np.float64),
+                            np.ascontiguousarray(tol_mm, dtype=np.float64),
+                            np.ascontiguousarray(v_cap_mm_s, dtype=np.float64),
+                            np.ascontiguousarray(acceleration_mm_s2, dtype=np.float64),
+                            np.ascontiguousarray(alone, dtype=np.bool_), g_s, rho, step_s, reach_s)
