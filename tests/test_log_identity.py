@@ -91,7 +91,7 @@ CASES = {
     "cut-at-52%": (_rows(0.0, 0.52), "before the program's last command (line 14): it is not a whole run"),
     "cut-at-60%": (_rows(0.0, 0.60), "before the program's last command (line 14): it is not a whole run"),
     "started-late": (_rows(0.3, 1.0), "the log starts at line 7, after the program's first command (line 4)"),
-    "two-runs": (_twice, "the log goes back from line 15 to line 3 at t = 9.780 s: it holds more than one run"),
+    "two-runs": (_twice, "the log goes back from line 15 to line 3 at t = 9.750 s: it holds more than one run"),
 }
 
 
