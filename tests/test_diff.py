@@ -102,7 +102,7 @@ def test_refined_square_lists_its_corrections_and_inserted_lines(tmp_path: Path)
     out = _learn(orig, tmp_path / "sq.ngc", "--refine")
     d = _check_against_state(orig, out)
     state = json.loads((tmp_path / "sq.ngc.state" / "state.json").read_text())
-    assert len(d["inserted"]) == state["part"]["refined"]["inserted_lines"] == 8
+    assert len(d["inserted"]) == state["part"]["refined"]["inserted_lines"] == 9
     assert d["_checked"] > 0 and d["summary"]["lines_corrected"] == 4
     big = max(np.linalg.norm(list(c["delta_um"].values())) for c in d["changed"])
     assert d["summary"]["largest_correction_um"] == pytest.approx(big, rel=1e-12)
