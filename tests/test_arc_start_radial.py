@@ -58,8 +58,11 @@ def test_the_fillets_get_a_handle(runs: dict[float, tuple[dict, Path]]) -> None:
     along, _ = runs[0.0]
     radial, _ = runs[RADIAL_MM]
     rms0 = along["iterations"][0]["contour_error_mm"]["rms"]
-    assert along["iterations"][1]["contour_error_mm"]["rms"] >= 0.99 * rms0  # no handle: nothing falls
-    # measured 6.75 -> 5.53 µm (-18 %); the assertion leaves room for the last decimals of another numba/numpy
+    # no handle: next to nothing falls (measured 7.66 -> 7.52 µm, -1.9 %, on the planner's junction rule; the rule
+    # before it: -0 %)
+    assert along["iterations"][1]["contour_error_mm"]["rms"] >= 0.97 * rms0
+    # measured 7.66 -> 6.31 µm (-17.7 %; on the rule before 6.75 -> 5.53 µm, -18 %); the assertion leaves room for
+    # the last decimals of another numba/numpy
     assert radial["iterations"][1]["contour_error_mm"]["rms"] <= 0.85 * rms0
     assert radial["iterations"][1]["kept"]
     # what the limit took off is counted with its cause, like any change of the law's output
