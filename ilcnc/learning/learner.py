@@ -49,6 +49,8 @@ from ilcnc.contour.air import (
 )
 from ilcnc.contour.figures import ErrorFigures
 from ilcnc.errors import UnsupportedError
+from ilcnc.learning.arc_starts import arc_start_constraint, keep_arcs_valid
+from ilcnc.learning.cycle_hold import CLIP_CYCLE, hold_cycle_time
 from ilcnc.learning.feed import FeedLaw, FeedOutcome, move_errors_mm, move_times_s
 from ilcnc.learning.guard import LearningGuard
 from ilcnc.learning.laws import AXES, LearningLaw, cut_runs, make_law
@@ -63,7 +65,6 @@ from ilcnc.program.model import (
     FLAG_POSITION_READ,
     FLAG_REPEATED,
     MOVE_ARC_CW,
-    MOVE_RAPID,
     Program,
     center_arc_tolerance_mm,
 )
@@ -72,8 +73,7 @@ from ilcnc.wording import plural
 
 __all__ = [
     "CLIP_ARC", "CLIP_BOUND", "CLIP_MOVE_LENGTH", "Clip", "IterationRecord", "LearnResult", "Learner", "UpdateShaper",
-    "changed_coordinates", "clip_corrections", "correctable_commands", "frozen_reasons", "keep_arcs_valid",
-    "keep_moves_forward",
+    "changed_coordinates", "clip_corrections", "correctable_commands", "frozen_reasons", "keep_moves_forward",
     "learn_virtual", "program_with_corrections"
 ]
 
@@ -196,92 +196,6 @@ class UpdateShaper:
                 f = sosfiltfilt(sos, g, padtype="even", padlen=pad)
                 out[s:e, a] = np.interp(tt, grid, f)
         return out
-
-
-def arc_start_constraint(program: Program) -> tuple[NDArray[np.int64], dict[str, NDArray[np.float64]]]:
-    """Commands whose end point starts an arc, with what keeps that arc valid.
-
-    The rewriter keeps an arc's centre and end point when its start moves, so
-    a start moved off the circle makes the arc a spiral (most controls refuse
-    a start and end radius that differ by more than a few µm) and a start
-    moved past the end along a short arc turns it into a nearly full circle.
-
-    Returns
-    -------
-    k : ndarray (J,)
-        Commands followed directly by an arc.
-    geometry : dict
-        ``center``, ``start`` (J, 3) mm, ``axes`` (J, 3) plane axes (first,
-        second, linear), ``direction`` (J,) +1 counter-clockwise, -1 clockwise,
-        ``length_mm`` (J,) arc length in the plane.
-    """
-    from ilcnc.program.model import MOVE_ARC_CCW, MOVE_ARC_CW, PLANE_AXES
-
-    mv = program.moves
-    cm = program.command_moves
-    nxt = cm + 1
-    ok = nxt < len(mv)
-    nk = np.where(ok, mv.kind[np.minimum(nxt, len(mv) - 1)], MOVE_RAPID) if len(mv) else np.zeros(0, np.int8)
-    sel = np.flatnonzero(ok & ((nk == MOVE_ARC_CW) | (nk == MOVE_ARC_CCW)))
-    arc = nxt[sel]
-    axes = np.array([PLANE_AXES[int(p)] for p in mv.plane[arc]], dtype=np.int64).reshape(-1, 3)
-    start = mv.start_mm[arc]
-    center = mv.center_mm[arc]
-    end = mv.end_mm[arc]
-    rows = np.arange(arc.size)
-    r0 = np.hypot(start[rows, axes[:, 0]] - center[rows, axes[:, 0]], start[rows, axes[:, 1]] - center[rows, axes[:, 1]])
-    a0 = np.arctan2(start[rows, axes[:, 1]] - center[rows, axes[:, 1]], start[rows, axes[:, 0]] - center[rows, axes[:, 0]])
-    a1 = np.arctan2(end[rows, axes[:, 1]] - center[rows, axes[:, 1]], end[rows, axes[:, 0]] - center[rows, axes[:, 0]])
-    direction = np.where(mv.kind[arc] == MOVE_ARC_CCW, 1.0, -1.0)
-    sweep = np.mod(direction * (a1 - a0), 2 * np.pi)
-    sweep = np.where(sweep < 1e-12, 2 * np.pi, sweep) + 2 * np.pi * np.maximum(mv.turns[arc].astype(np.float64) - 1, 0)
-    r1 = np.hypot(end[rows, axes[:, 0]] - center[rows, axes[:, 0]], end[rows, axes[:, 1]] - center[rows, axes[:, 1]])
-    return sel, {"center": center, "start": start, "axes": axes, "direction": direction,
-                 "length_mm": r0 * sweep, "radius_mm": r0, "end_radius_mm": r1,
-                 "radial_mm": np.zeros(arc.size)}
-
-
-def keep_arcs_valid(u: NDArray[np.float64], sel: NDArray[np.int64], geo: dict[str, NDArray[np.float64]],
-                    *, share: float = 0.1) -> NDArray[np.float64]:
-    """Restrict the corrections of arc-starting commands to what keeps their arc one the control runs.
-
-    The in-plane part of the correction along the arc's tangent is kept, at
-    most ``share`` of the arc's length, and the point is moved along the
-    circle (same centre). The radial part is kept within ``geo["radial_mm"]``
-    of the end's radius (0: none, the arc stays a true arc; more: the arc
-    becomes a spiral whose start and end radii differ by at most that much,
-    which controls run as a spiral, see
-    :func:`~ilcnc.program.model.arc_off_circle`); the out-of-plane part is
-    dropped.
-    """
-    if sel.size == 0:
-        return u
-    out = u.copy()
-    ax = geo["axes"]
-    rows = np.arange(sel.size)
-    c1, c2 = geo["center"][rows, ax[:, 0]], geo["center"][rows, ax[:, 1]]
-    p1, p2 = geo["start"][rows, ax[:, 0]], geo["start"][rows, ax[:, 1]]
-    r = geo["radius_mm"]
-    ang = np.arctan2(p2 - c2, p1 - c1)
-    # unit tangent in the direction of travel
-    t1, t2 = -np.sin(ang) * geo["direction"], np.cos(ang) * geo["direction"]
-    uu = u[sel]
-    along = uu[rows, ax[:, 0]] * t1 + uu[rows, ax[:, 1]] * t2
-    lim = share * geo["length_mm"]
-    along = np.clip(along, -lim, lim)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        dang = np.where(r > 0, along / r, 0.0) * geo["direction"]
-    radial = uu[rows, ax[:, 0]] * np.cos(ang) + uu[rows, ax[:, 1]] * np.sin(ang)
-    lim_r = geo["radial_mm"]
-    r1 = geo["end_radius_mm"]
-    rn = np.clip(r + radial, r1 - lim_r, r1 + lim_r)
-    rn = np.where(lim_r > 0, rn, r)
-    n1, n2 = c1 + rn * np.cos(ang + dang), c2 + rn * np.sin(ang + dang)
-    new = np.zeros_like(uu)
-    new[rows, ax[:, 0]] = n1 - p1
-    new[rows, ax[:, 1]] = n2 - p2
-    out[sel] = new
-    return out
 
 
 def axes_free_to_move(program: Program) -> NDArray[np.bool_]:
@@ -926,6 +840,7 @@ def learn_virtual(
                            message="the program has no G01 command to correct", best=0, frozen=frozen,
                            frozen_reasons=why,
                            air_commands=n_air, cutting=rule)
+    budget = _CycleBudget(program, profile, records[0].cycle_time_s if prog0 is program else None)
     it = 0
     # learning.refine.feed: when the geometry stalls (or its step is refused twice), the next step lowers the
     # feed where the error is left (the geometry held), then the geometry learns on at the new feeds
@@ -960,10 +875,32 @@ def learn_virtual(
         text, prog = program_with_corrections(program, u_new, profile, feed_scale=f_new)
         t_write = time.perf_counter() - t0
         sim, sig, tim = run(prog, it)
+        cycle = float(sim.cycle_time_s)
+        if not feed_step and cycle > budget.limit_s(feed_law):
+            # the corrections slowed the planner beyond learning.cycle_budget_pct: hold back those that did
+            del sim, prog
+            t0 = time.perf_counter()
+            u_held = budget.hold(u_hist[-1], u_new, f_new, feed_law)
+            held = changed_coordinates(u_new, u_held, program.command_line, CLIP_CYCLE)
+            if np.array_equal(u_held, u_hist[-1]):  # nothing left to learn within the budget
+                it -= 1
+                stall_msg = (f"every correction left would slow the planner beyond learning.cycle_budget_pct "
+                             f"({profile.learning.cycle_budget_pct:g} % of cycle time; {plural(len(held), 'coordinate')}"
+                             " held)")
+                if not feed_done:
+                    feed_step = True
+                    continue
+                status, message = LearnStatus.STOPPED, stall_msg
+                break
+            clips = clips + held
+            u_new = u_held
+            text, prog = program_with_corrections(program, u_new, profile, feed_scale=f_new)
+            t_write += time.perf_counter() - t0
+            sim, sig, tim = run(prog, it)
+            cycle = float(sim.cycle_time_s)
         tim["law"] = t_law
         tim["write"] = t_write
         stats = sim.stats
-        cycle = float(sim.cycle_time_s)
         worse, ref_stats = guard_.compare(stats, [r.stats for r in records if r.kept])
         assert ref_stats is not None  # iteration 0 is always kept
         if not guard:  # an unguarded run keeps every iteration; the reference still names what grew
@@ -975,6 +912,8 @@ def learn_virtual(
                 worse.append("cycle")
             if guard and not worse and stats.max_mm >= ref_stats.max_mm:
                 worse.append("max")  # a feed step is taken for the max: one that does not lower it costs time
+        elif guard and cycle > budget.limit_s(feed_law):
+            worse.append("cycle")  # held back as far as the limiter goes, still over the budget
         rec = IterationRecord(iteration=first_iteration + it, stats=stats, corrections_mm=u_new, signal=sig,
                               clipped=clips, kept=not worse, gain_scale=guard_.gain_scale, text=text,
                               run=sim if keep_runs else None, timings_s=tim, shares=dict(sim.shares),
@@ -984,7 +923,7 @@ def learn_virtual(
         if on_record:
             on_record(rec)
         if worse:
-            what = " and ".join(_grown(w, ref_stats, stats, rec, feed_law) for w in worse)
+            what = " and ".join(_grown(w, ref_stats, stats, rec, budget.limit_s(feed_law)) for w in worse)
             if feed_step:  # the feed learning ends; the geometry's outcome stands
                 feed_step, feed_done = False, True
                 status = LearnStatus.STOPPED
@@ -1044,13 +983,53 @@ def learn_virtual(
 
 
 def _grown(what: str, ref: Mapping[str, float], new: Mapping[str, float], rec: IterationRecord,
-           feed_law: FeedLaw | None) -> str:
+           limit_s: float) -> str:
     """One grown figure for the guard's message."""
     if what == "cycle":
-        assert feed_law is not None and rec.cycle_time_s is not None
-        limit = feed_law.cycle0_s + feed_law.budget_s
-        return f"cycle time {rec.cycle_time_s:.2f} s over the feed budget's {limit:.2f} s"
+        assert rec.cycle_time_s is not None
+        return f"cycle time {rec.cycle_time_s:.2f} s over the budget's {limit_s:.2f} s"
     return LearningGuard.grown(what, ref, new)
+
+
+@dataclass(slots=True)
+class _CycleBudget:
+    """``learning.cycle_budget_pct`` in one learning run (:mod:`ilcnc.learning.cycle_hold`): the original
+    program's plan, planned once when a run first leaves the budget."""
+
+    program: Program
+    profile: MachineProfile
+    cycle0_s: float | None  # the first run's cycle time when it is the original program's, s
+    times0_s: NDArray[np.float64] | None = None
+
+    def _original(self) -> None:
+        from ilcnc.vcnc.plan import planned_move_times_s
+
+        self.times0_s, self.cycle0_s = planned_move_times_s(self.program, self.profile)
+
+    def limit_s(self, feed_law: FeedLaw | None) -> float:
+        """The longest cycle time the corrections may give, s (with feed learning, at least its own budget's)."""
+        if self.cycle0_s is None:
+            self._original()
+        assert self.cycle0_s is not None
+        limit = self.cycle0_s * (1.0 + self.profile.learning.cycle_budget_pct / 100.0)
+        return max(limit, feed_law.cycle0_s + feed_law.budget_s) if feed_law is not None else limit
+
+    def hold(self, u_prev: NDArray[np.float64], u_new: NDArray[np.float64],
+             feed_scale: NDArray[np.float64] | None, feed_law: FeedLaw | None) -> NDArray[np.float64]:
+        """The proposal ``u_new`` with the corrections that slow the planner held back (:func:`hold_cycle_time`)."""
+        from ilcnc.vcnc.plan import planned_move_times_s
+
+        if self.times0_s is None:
+            self._original()
+        assert self.times0_s is not None
+
+        def plan(u: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+            return planned_move_times_s(program_with_corrections(self.program, u, self.profile,
+                                                                 feed_scale=feed_scale)[1], self.profile)
+
+        res = hold_cycle_time(u_prev, u_new, plan, self.times0_s, self.limit_s(feed_law), self.program.moves.command,
+                              self.profile.machine.servo_period_s, resolution_mm=self.profile.machine.resolution_mm)
+        return res.corrections_mm
 
 
 def _feed_law(program: Program, profile: MachineProfile, classes: NDArray[np.int8], time_s: NDArray[np.float64],

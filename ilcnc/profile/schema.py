@@ -655,6 +655,16 @@ SPECS: tuple[Spec, ...] = (
         default=0.0,
     ),
     _f(
+        "learning.cycle_budget_pct",
+        "Most extra cycle time the learned corrections may cost, % of the original program's (planned) cycle time:"
+        " a correction that bends a corner the planner runs at its tolerance makes it slow down there; such"
+        " corrections are held back, each held coordinate reported as a clip 'cycle time' (docs/learning.md).",
+        "%",
+        0,
+        100,
+        default=1.0,
+    ),
+    _f(
         "learning.stop_tolerance_mm",
         "Stop when the largest contour error is below this.",
         "mm",

@@ -459,6 +459,8 @@ class LearningSection:
     arc_start_radial_mm : float
         How far an arc's start (the end point of the command before it) may move off the arc's circle, mm
         (the arc becomes a spiral); 0: along the circle only.
+    cycle_budget_pct : float
+        Most extra cycle time the corrections may cost, % of the original's (:mod:`ilcnc.learning.cycle_hold`).
     stop_tolerance_mm : float
         Stop tolerance on the largest contour error, mm.
     q_filter_hz : float or None
@@ -480,6 +482,7 @@ class LearningSection:
     iterations: int = default_of("learning.iterations")
     correction_bound_mm: float = default_of("learning.correction_bound_mm")
     arc_start_radial_mm: float = default_of("learning.arc_start_radial_mm")
+    cycle_budget_pct: float = default_of("learning.cycle_budget_pct")
     stop_tolerance_mm: float = default_of("learning.stop_tolerance_mm")
     q_filter_hz: float | None = default_of("learning.q_filter_hz")
     lead_commands: int = default_of("learning.lead_commands")
@@ -834,6 +837,8 @@ class MachineProfile:
             learning["model_steps"] = lr.model_steps
         if lr.arc_start_radial_mm:
             learning["arc_start_radial_mm"] = lr.arc_start_radial_mm
+        if lr.cycle_budget_pct != default_of("learning.cycle_budget_pct"):
+            learning["cycle_budget_pct"] = lr.cycle_budget_pct
         if lr.air_moves != "keep":
             learning["air_moves"] = lr.air_moves
         if lr.refine != RefineSection():

@@ -2,9 +2,8 @@
 
 Method: FIR-filter interpolation
 --------------------------------
-The path is first traversed by an *ideal interpolator* at piecewise-constant
-speed (each move, or the zones of a move near its corners, at its own speed;
-arcs as arcs, sampled exactly). That position signal is then smoothed by
+The path is first traversed by an *ideal interpolator* at piecewise-constant speed (each move, or the zones of a
+move near its corners, at its own speed; arcs as arcs, sampled exactly). That position signal is then smoothed by
 cascaded moving-average (FIR) filters on every axis:
 
 * ``seven_phase``: two filters, lengths ``T1`` and ``T2``. A velocity step
@@ -17,25 +16,20 @@ cascaded moving-average (FIR) filters on every axis:
 * ``constant_feed``: no filter: the ideal interpolator itself (no
   acceleration limits), as the seed 000 and 003 cases need.
 
-Why filters instead of a hand-written look-ahead: a moving average of
-length ``T`` turns any velocity jump ``dv`` into an acceleration ``dv/T``
-and any acceleration jump ``da`` into a jerk ``da/T``; so the acceleration
-and jerk of every axis are bounded by construction, the feed is never forced
-to zero between short CAM segments (the filter averages over many of them)
-and the whole plan is a few running sums per sample. Corners are rounded by the filters; the
-speed through each junction is chosen so that the rounding stays within the corner
-tolerance (like LinuxCNC's ``G64 P``) and the acceleration within the axes' limits, both
-computed from every direction change within the filters' span
-(:mod:`ilcnc.vcnc.plan_corners`): a corner alone is rounded by ``v·|Δu|·E[τ⁺]``
-(``T/8 + t²/(24·T)`` for two filters, ``T`` the longer), a densely segmented curve
-shrinks as its arc, and a chain of small kinks that alternate (a corrected line) by
-what the filters leave of them. Arcs shrink by ``v²(T1²+T2²)/(24R)``; their speed is
+Why filters instead of a hand-written look-ahead: a moving average of length ``T`` turns any velocity jump ``dv``
+into an acceleration ``dv/T`` and any acceleration jump ``da`` into a jerk ``da/T``; so the acceleration and jerk of
+every axis are bounded by construction, the feed is never forced to zero between short CAM segments (the filter
+averages over many of them) and the whole plan is a few running sums per sample. Corners are rounded by the filters;
+the speed through each junction is chosen so that the rounding stays within the corner tolerance (like LinuxCNC's
+``G64 P``) and the acceleration within the axes' limits, both computed from every direction change within the
+filters' span (:mod:`ilcnc.vcnc.plan_corners`): a corner alone is rounded by ``v·|Δu|·E[τ⁺]`` (``T/8 + t²/(24·T)``
+for two filters, ``T`` the longer), a densely segmented curve shrinks as its arc, and a chain of small kinks that
+alternate (a corrected line) by what the filters leave of them. Arcs shrink by ``v²(T1²+T2²)/(24R)``; their speed is
 limited the same way, and by the centripetal acceleration ``v²/R``.
 
-After filtering, every axis's velocity, acceleration and jerk are checked on
-the sampled reference (finite differences); where a limit would be exceeded
-(e.g. a reversal, which doubles a velocity jump) the speed of the moves
-around it is lowered and that group is planned again.
+After filtering, every axis's velocity, acceleration and jerk are checked on the sampled reference (finite
+differences); where a limit would be exceeded (e.g. a reversal, which doubles a velocity jump) the speed of the
+moves around it is lowered and that group is planned again.
 
 Rapids and feed moves form separate *groups* with their own time constants
 (rapids are much faster); the planner comes to a stop between groups.
@@ -135,7 +129,7 @@ from ilcnc.vcnc.plan_kernels import BLOCK_SAMPLES, arc_table, group_kernel, grou
 
 __all__ = [
     "Reference", "ReferenceChunk", "check_limits", "corner_zones_mm", "plan_chunks", "plan_moves", "plan_program",
-    "planned_duration_s"
+    "planned_duration_s", "planned_move_times_s"
 ]
 
 _EPS = EPS_MM
@@ -155,7 +149,6 @@ _BLEND_LENGTH_FRACTION = 0.25
 #: A junction whose turn alone would round the path by at most this fraction of its tolerance is a point on a
 #: line, not a corner (:func:`_corner_limits`).
 _OWN_TURN = 0.01
-
 
 
 _Pieces = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64],
@@ -432,13 +425,19 @@ def _profile_pieces(program: object, profile: MachineProfile, chunk: int, mode: 
 
 
 def planned_duration_s(program: object, profile: MachineProfile) -> float:
-    """Planned cycle time of a program, s: :func:`plan_program`'s ``duration_s`` without holding its samples.
+    """Planned cycle time of a program, s: :func:`plan_program`'s ``duration_s`` without holding its samples."""
+    return planned_move_times_s(program, profile)[1]
 
-    It counts the samples of :func:`plan_chunks`' pieces as they are planned (no chunk is assembled).
-    """
-    _moves, pieces = _profile_pieces(program, profile, DEFAULT_CHUNK_SAMPLES - DEFAULT_CHUNK_SAMPLES % BLOCK_SAMPLES, None)
-    n = sum(pos.shape[0] for pos, _mv in pieces)
-    return max(n - 1, 0) * profile.machine.servo_period_s
+
+def planned_move_times_s(program: object, profile: MachineProfile) -> tuple[NDArray[np.float64], float]:
+    """Each move's planned time (M,) and the cycle time, s, counted from :func:`plan_chunks`' pieces as they are
+    planned (no chunk is assembled, no sample held)."""
+    moves, pieces = _profile_pieces(program, profile, DEFAULT_CHUNK_SAMPLES - DEFAULT_CHUNK_SAMPLES % BLOCK_SAMPLES, None)
+    counts, n = np.zeros(len(moves), np.int64), 0
+    for pos, mv in pieces:
+        n += pos.shape[0]
+        counts += np.bincount(mv[mv >= 0], minlength=len(moves))[:len(moves)]
+    return counts * profile.machine.servo_period_s, max(n - 1, 0) * profile.machine.servo_period_s
 
 
 def _chunk(moves: MoveTable, first: int, period_s: float, pos: NDArray[np.float64], mv: NDArray[np.int32],
