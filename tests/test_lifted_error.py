@@ -71,10 +71,11 @@ def test_estimate_is_linear_in_the_error_and_zero_where_not_free(square_run):
     assert np.all(e3[:, 0] == 0.0) and np.abs(e3[:, 1]).max() > 0
 
 
-def test_lifted_learns_compass_further_than_path_without_the_cycle_cost():
-    """compass (dense CAM engraving), refined, two virtual iterations at the profile's Γ: lifted lowers the cutting
-    RMS further than path and keeps the cycle time (measured: lifted 0.527 -> 0.341 µm at +0.14 %, path
-    0.527 -> 0.415 µm at +3.3 %: path's corrections kink its 0.03 mm moves and the planner slows there)."""
+def test_both_estimates_learn_compass_without_the_cycle_cost():
+    """compass (dense CAM engraving), refined, two virtual iterations at the profile's Γ: both estimates lower the
+    cutting RMS and keep the cycle time (measured: path 0.748 -> 0.516 µm, lifted 0.748 -> 0.590 µm, both within
+    +0.03 %). On the planner's old corner rule path's corrections cost +3.3 %: its junction speed jumped with the
+    0.03 mm moves' small turns (ilcnc.vcnc.plan_corners sums them as the filters do)."""
     profile = load_profile(MILL)
     prog = refine_for_learning(read_program(REPO / "samples" / "compass.ngc"), profile).program
     out = {}
@@ -83,8 +84,9 @@ def test_lifted_learns_compass_further_than_path_without_the_cycle_cost():
         best = res.best_record
         out[kind] = (best.stats["rms"] / res.iterations[0].stats["rms"],
                      best.cycle_time_s / res.iterations[0].cycle_time_s - 1.0)
-    assert out["lifted"][0] < 0.75 and out["lifted"][0] < out["path"][0] - 0.05
-    assert out["lifted"][1] < 0.01 < out["path"][1]
+        assert best.iteration == 2 and all(r.kept for r in res.iterations)
+    assert out["path"][0] < 0.72 and out["lifted"][0] < 0.82
+    assert out["path"][1] < 0.002 and out["lifted"][1] < 0.002
 
 
 @pytest.mark.parametrize("name", ["square.ngc", "jsdc.gcode"])
@@ -138,8 +140,10 @@ def test_plan_is_continuous_in_a_point_that_breaks_a_collinear_chain():
     for dx, dy in [(0.0, 0.0), (-0.002, -0.001), (0.002, 0.001)]:
         text = _FILLETS.format(x=f"{66.576328 + dx:.6f}", y=f"{28.074600 + dy:.6f}")
         t.append(plan_program(read_program("fillets.ngc", data=text.encode()), profile).duration_s)
-    # measured 2.466 s, then 2.487 s twice (+0.9 %); before the fix 3.296 -> 3.605 s (+9 %)
-    assert max(t) <= 1.02 * t[0]
+    # measured 2.770 s, then 2.835 / 2.822 s (+2.3 %: a junction within the span of the new 2° corner takes its
+    # speed, ilcnc.vcnc.plan_corners); on the corner rule before the junction rule 2.466 -> 2.487 s, and before the
+    # fix of the jump 3.296 -> 3.605 s (+9 %)
+    assert max(t) <= 1.03 * t[0]
 
 
 def test_lifted_holds_arc_starts():
