@@ -92,7 +92,9 @@ def test_check_gates_on_the_cutting_moves() -> None:
     limit = cut["contour_error_mm"]["max"] * 1.001
     ok = runner.invoke(app, ["check", str(JSDC), "--profile", str(SEED004), "--max-error", f"{limit}"])
     assert ok.exit_code == 0 and "cutting moves max" in ok.output
-    assert worst_all < limit  # jsdc's air moves err less than its cuts
+    # jsdc's largest feed-move error is in the air (measured 17.39 µm against the cuts' 17.08 µm on seed 004's
+    # profile: a jscut "G1 Z1" approach): the gate passes on the cutting moves' max alone
+    assert worst_all > limit
     # every feed move in the air: nothing is cut, so there is nothing to pass -- refused, not "ok"
     none = runner.invoke(app, ["check", str(JSDC), "--profile", str(SEED004), "--max-error", "1", "--cutting-below-z", "-5"])
     assert none.exit_code == 1 and "no cutting move" in none.output

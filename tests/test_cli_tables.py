@@ -36,7 +36,7 @@ def test_batch_table(tmp_path: Path) -> None:
     out = _run("batch", parts, "--profile", PROFILE, "--out", tmp_path / "out", "--iterations", "1")
     _fits(out)
     joined = "".join(out.split())  # a folded name continues on the next line
-    assert "square.ngc" in out and "18.99→" in out and "44.03→44.05" in out and "max_iterations" in joined
+    assert "square.ngc" in out and "17.46→" in out and "44.03→44.05" in out and "max_iterations" in joined
     assert "example-mill.yaml" in out  # one profile: named once, in the title
 
 

@@ -36,23 +36,23 @@ def test_planned_move_times_are_the_plans():
 
 @pytest.fixture(scope="module")
 def jsdc_runs():
-    """jsdc.gcode refined on the example mill, two iterations without a budget (100 %) and with the default."""
+    """jsdc.gcode refined on the example mill, two iterations without a budget (100 %) and with 1 %."""
     profile = load_profile(MILL)
     prog = refine_for_learning(read_program(REPO / "samples" / "jsdc.gcode"), profile).program
     free = learn_virtual(prog, _budget(profile, 100.0), iterations=2, error="lifted", stop_on_stall=False)
-    held = learn_virtual(prog, profile, iterations=2, error="lifted", stop_on_stall=False)
+    held = learn_virtual(prog, _budget(profile, 1.0), iterations=2, error="lifted", stop_on_stall=False)
     return profile, prog, free, held
 
 
 def test_corrections_that_slow_the_planner_are_held_within_the_budget(jsdc_runs):
     """jsdc's learned corrections bend its dense corners: without a budget the planner slows there (measured
-    max 15.92 -> 8.49 µm at +3.8 % cycle time); within the default 1 % the corrections that slowed it are held
-    back, each held coordinate a 'cycle time' clip, and the error still falls (measured 15.92 -> 10.06 µm max,
-    RMS 6.06 -> 1.76 µm at +0.31 %)."""
+    max 15.91 -> 8.49 µm at +3.5 % cycle time); within 1 % the corrections that slowed it are held back, each
+    held coordinate a 'cycle time' clip, and the error still falls (measured 15.91 -> 10.16 µm max, RMS 6.07 ->
+    1.74 µm at +0.41 %)."""
     profile, _prog, free, held = jsdc_runs
-    assert profile.learning.cycle_budget_pct == 1.0
+    assert profile.learning.cycle_budget_pct == 5.0  # the default: jsdc's +3.5 % is within it
     c0 = free.iterations[0].cycle_time_s
-    assert free.iterations[-1].cycle_time_s > 1.03 * c0
+    assert free.iterations[-1].cycle_time_s > 1.02 * c0
     assert not any(r.clipped for r in free.iterations)
     assert all(r.kept for r in held.iterations)
     for r in held.iterations[1:]:
@@ -98,7 +98,7 @@ def test_no_budget_left_stops_learning_and_says_why():
     prog = refine_for_learning(read_program(OWN / "square.ngc"), profile).program
     res = learn_virtual(prog, profile, iterations=2, error="lifted", stop_on_stall=False)
     assert res.status == "stopped"
-    assert "beyond learning.cycle_budget_pct (0 % of cycle time; 7 coordinates held)" in res.message
+    assert "beyond learning.cycle_budget_pct (0 % of cycle time; 8 coordinates held)" in res.message
     assert len(res.iterations) == 1 and res.best_record.text == prog.text
 
 

@@ -28,8 +28,8 @@ def _cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
                           timeout=600)
 
 
-def _learn(src: Path, out: Path, *extra: str) -> Path:
-    r = _cli("learn", src, "--profile", PROFILE, "--out", out, *extra)
+def _learn(src: Path, out: Path, *extra: str, profile: Path = PROFILE) -> Path:
+    r = _cli("learn", src, "--profile", profile, "--out", out, *extra)
     assert r.returncode == 0, r.stderr
     return out
 
@@ -164,7 +164,13 @@ def test_gates_refined_lists_inserted_lines_only(tmp_path: Path) -> None:
 
 def test_klartext_renumbered_blocks_are_no_change(tmp_path: Path) -> None:
     orig = OWN / "square.h"
-    out = _learn(orig, tmp_path / "square.h", "--refine", "--iterations", "2")
+    # the Klartext square's corner corrections cost +9.8 % cycle time on the example mill (measured 9.37 -> 7.70 µm
+    # max, 5.71 -> 6.27 s), beyond the default learning.cycle_budget_pct: this test of the diff allows them
+    text = PROFILE.read_text(encoding="utf-8")
+    assert "\nlearning:\n" in text
+    wide = tmp_path / "mill.yaml"
+    wide.write_text(text.replace("\nlearning:\n", "\nlearning:\n  cycle_budget_pct: 100\n", 1), encoding="utf-8")
+    out = _learn(orig, tmp_path / "square.h", "--refine", "--iterations", "2", profile=wide)
     d = _check_against_state(orig, out)
     first = min(i["out_line"] for i in d["inserted"])
     # every block after the first inserted one got a new number, none of them is listed for that

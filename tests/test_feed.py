@@ -157,14 +157,14 @@ def test_move_errors_count_foot_and_reference_move():
     assert e.tolist() == [0.001, 0.005, 0.005]
 
 
-def test_learn_takes_a_feed_step_only_where_the_geometry_stalled():
-    """compass on the example mill, refined: the geometry learns and stalls (measured max 13.49 -> 11.69 µm after
-    four iterations), then a feed step slows moves where the error is left, within the +2 % budget. It is judged
-    by the next run like any step: here it does not lower the max (measured 11.69 -> 11.74 µm, +1.6 % cycle
-    time), so it is refused, reported, and the output is the geometry's best with every feed as programmed.
-    (On the planner's corner rule before ilcnc.vcnc.plan_corners the corners were taken too slowly, the max was
-    the drives' lag there and the feed steps lowered it by 20 %; now it sits at corners the planner rounds to its
-    10 µm tolerance, which a feed above the corner's own speed does not change: docs/learning.md.)"""
+def test_learn_lowers_feeds_only_where_the_geometry_stalled():
+    """compass on the example mill, refined: the geometry learns and stalls (measured max 13.32 -> 11.75 µm after
+    four iterations), then a feed step slows the moves where the error is left, within the +2 % budget, and
+    lowers the max a little (measured 11.75 -> 11.67 µm at +1.6 % cycle time, 40 moves); every slowed move is
+    reported, and the output differs from a corrections-only rewrite by F words alone. (On the planner's corner
+    rule before ilcnc.vcnc.plan_corners the corners were taken too slowly, the max was the drives' lag there and
+    the feed steps lowered it by 28 %; now it sits at corners the planner rounds to its 10 µm tolerance, which a
+    feed above the corner's own speed changes little: docs/learning.md.)"""
     profile = load_profile(MILL)
     on = dataclasses.replace(profile, learning=dataclasses.replace(
         profile.learning, refine=dataclasses.replace(profile.learning.refine, feed="on")))
@@ -172,17 +172,25 @@ def test_learn_takes_a_feed_step_only_where_the_geometry_stalled():
     off_res = learn_virtual(program, profile, iterations=5, error="lifted")
     res = learn_virtual(program, on, iterations=5, error="lifted")
     first, best = res.iterations[0], res.best_record
+    assert res.feed is not None and res.feed.slowed
     # until the geometry stalls both runs are the same run
     k = next(i for i, r in enumerate(res.iterations) if r.feed_scale is not None and np.any(r.feed_scale < 1))
     assert k >= 2
     for a, b in zip(off_res.iterations[:k], res.iterations[:k], strict=True):
         assert a.stats == b.stats
-    step = res.iterations[k]
-    assert not step.kept and step.cycle_time_s <= first.cycle_time_s * 1.02 + 1e-9
-    assert step.stats["max"] >= min(r.stats["max"] for r in res.iterations[:k] if r.kept)
-    assert res.status == "stopped" and f"the feed step of iteration {step.iteration} did not lower the error" in res.message
-    # the output: the geometry's best, no move slowed, no F word changed
-    assert res.feed is not None and res.feed.slowed == []
-    assert best.iteration < step.iteration and (best.feed_scale is None or np.all(best.feed_scale == 1.0))
+    # the feed step lowers the max below what the geometry alone reached, within the budget
+    assert best.stats["max"] < min(r.stats["max"] for r in off_res.iterations if r.kept)
+    assert best.cycle_time_s <= first.cycle_time_s * 1.02 + 1e-9
+    # every slowed move is reported with its programmed and written feed
+    assert best.feed_scale is not None
+    assert len(res.feed.slowed) == int(np.count_nonzero(best.feed_scale < 1.0))
+    for d in res.feed.slowed:
+        f0, f1 = d["feed_mm_min"]
+        assert f1 < f0 and f1 >= 0.25 * f0 - 0.5
+    # the output: the corrections-only rewrite plus F words
     text_geo, _p = program_with_corrections(program, best.corrections_mm, on)
-    assert text_geo == best.text
+    a, b = text_geo.splitlines(), best.text.splitlines()
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        if x != y:
+            assert _F.sub("", x).rstrip() == _F.sub("", y).rstrip()

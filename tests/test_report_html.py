@@ -117,9 +117,10 @@ def _check_page(rep: Path, state: Path, again: dict) -> str:
 def test_html_square(square: tuple[Path, Path, dict]) -> None:
     rep, state, again = square
     page = _check_page(rep, state, again)
-    # example-mill's path estimate leaves the 50 mm square as it is: no arrow, an empty diff, said so
-    assert again["arrows_total"] == 0 and again["diff_changed"] == 0
-    assert "0 line(s) changed" in page
+    # example-mill's path estimate moves one point of the 50 mm square (whose error is the planner's rounding of its
+    # G64 P0.05 corners): the plunge's end 1 µm deeper, Z0 -> Z-0.001, and the Z0 the next line then needs
+    assert again["arrows_total"] == 1 and again["diff_changed"] == 2
+    assert "2 line(s) changed" in page
 
 
 def test_dense_program_is_decimated_and_capped(locket: tuple[Path, Path, dict]) -> None:
@@ -169,9 +170,13 @@ def _find(screen: np.ndarray, image: np.ndarray, tol: int) -> tuple[int, int] | 
     """Top-left corner where ``image`` appears in ``screen`` at 1:1 scale (every channel within ``tol``)."""
     h, w, _ = image.shape
     row = int(np.argmax([len(np.unique(r.view(np.dtype((np.void, 6))))) for r in image]))  # the most varied row
-    col = int(np.argmax(np.abs(image[row] - 255).sum(axis=1)))  # its darkest pixel: a rare colour
+    # its pixel of the colour rarest in the image (a colour the image draws often, such as a line's, seeds the
+    # search at every pixel of that line on the screen)
+    key = (image[..., 0].astype(np.int64) << 16) | (image[..., 1].astype(np.int64) << 8) | image[..., 2]
+    colours, counts = np.unique(key, return_counts=True)
+    col = int(np.argmin(counts[np.searchsorted(colours, key[row])]))
     seed = np.abs(screen - image[row, col]).max(axis=2) <= tol
-    for y, x in np.argwhere(seed)[:2000]:
+    for y, x in np.argwhere(seed)[:20000]:
         y0, x0 = y - row, x - col
         if y0 < 0 or x0 < 0 or y0 + h > screen.shape[0] or x0 + w > screen.shape[1]:
             continue

@@ -320,20 +320,20 @@ def test_schedule_on_the_standin(schedule_report: TuneReport) -> None:
     assert isinstance(r, ScheduleResult)
     # C1 is the best fixed gain of Z (seed 001 §4) among 1.0, 1.1, ..., 3.0 (tuning.schedule.baseline_kp_m_min_mm),
     # all of which keep X and Z within Table 1 on the calibrated stand-in: measured K_p 1.6 (the paper's Table 2
-    # value, found, not set), MSE 1.241 µm² (paper 2.26 µm²); 1.5 and 1.7 give 1.459 and 1.281 µm², 2.7 6.030 µm²
+    # value, found, not set), MSE 1.196 µm² (paper 2.26 µm²); 1.5 and 1.7 give 1.406 and 1.233 µm², 2.7 5.786 µm²
     assert r.kp_fixed == pytest.approx(1.6)
     assert len(r.baseline_scan) == 21 and all(ok for _k, _m, ok in r.baseline_scan)
     assert r.mse_before_um2 == pytest.approx(min(m for _k, m, _ok in r.baseline_scan))
-    assert r.mse_before_um2 == pytest.approx(1.241, rel=0.02)
+    assert r.mse_before_um2 == pytest.approx(1.196, rel=0.02)
     assert 2.26 / 2 < r.mse_before_um2 < 2.26 * 2  # issue 22 item 5: within a factor 2 of the paper's C1
-    # C2 (K_p of Z scheduled in [1, 2.7], Np 50, λ 0.01 with ε̂ in µm, ΔK -0.05..0.05): measured 1.241 -> 0.291 µm²
+    # C2 (K_p of Z scheduled in [1, 2.7], Np 50, λ 0.01 with ε̂ in µm, ΔK -0.05..0.05): measured 1.196 -> 0.281 µm²
     # (-76.5 %; paper 2.26 -> 0.51 µm², -77.43 %), max 5.28 -> 3.49 µm
-    assert r.mse_after_um2 == pytest.approx(0.291, rel=0.02)
+    assert r.mse_after_um2 == pytest.approx(0.281, rel=0.02)
     assert r.max_after_um < r.max_before_um
     # against the programmed G01 path the planner's own rounding of the 0.5-mm chords dominates (no servo error):
-    # measured 141.2 -> 145.7 µm², not what the paper (eq. 1: the setpoints) or the schedule measures
-    assert r.mse_program_before_um2 == pytest.approx(141.2, rel=0.01)
-    assert r.mse_program_after_um2 == pytest.approx(145.7, rel=0.01)
+    # measured 135.4 -> 139.8 µm², not what the paper (eq. 1: the setpoints) or the schedule measures
+    assert r.mse_program_before_um2 == pytest.approx(135.4, rel=0.01)
+    assert r.mse_program_after_um2 == pytest.approx(139.8, rel=0.01)
     assert r.kp.min() >= 1.0 - 1e-9 and r.kp.max() <= 2.7 + 1e-9
     assert np.all(np.abs(np.diff(r.kp)) <= 0.05 + 1e-9)
     # every axis's actual motion stays within seed 001's limits, C1 and C2 (Z jerk measured 4.83 -> 4.61 m/s³)
@@ -475,8 +475,8 @@ def test_the_written_schedule_runs_in_simulate(schedule_report: TuneReport, tmp_
     before = json.loads(res.stdout)["contour_error_mm"]["rms"]
     after = json.loads(res2.output)["contour_error_mm"]["rms"]
     # simulate measures against the programmed G01 path, where the planner's own rounding of the 0.5-mm chords
-    # dominates (as in tune's mse_program_*, 141.2 -> 145.7 µm²): measured RMS 9.75 -> 9.93 µm
-    assert before == pytest.approx(0.009752, rel=0.01) and after == pytest.approx(0.009935, rel=0.01)
+    # dominates (as in tune's mse_program_*, 135.4 -> 139.8 µm²): measured RMS 9.43 -> 9.61 µm
+    assert before == pytest.approx(0.009428, rel=0.01) and after == pytest.approx(0.009607, rel=0.01)
     bad = tmp_path / "bad.csv"
     bad.write_text("t_s,kp\n0,1.6\n0.001,-1\n")
     res3 = runner.invoke(app, ["simulate", str(STANDIN), "--profile", str(SEED001), "--schedule", str(bad)])
@@ -523,7 +523,7 @@ def test_schedule_without_the_gain_penalty(schedule_report: TuneReport) -> None:
     # seed 001 (Fig. 7.c): λ = 0.01 only removes small peaks of ΔK, "the MSE(CE) is the same" as with λ = 0.
     # Where every candidate costs the same (Z at rest on the flats, or stuck in friction) the smallest |ΔK| is
     # taken; taking the first candidate (ΔK = -0.05) let K_p sink to 1 on the flats: -41.5 % with λ = 0.
-    # Measured now: 1.241 -> 0.291 µm² (-76.5 %) with λ = 0 as with λ = 0.01 (ε̂ in µm; with ε̂ in mm, as until
+    # Measured now: 1.196 -> 0.281 µm² (-76.5 %) with λ = 0 as with λ = 0.01 (ε̂ in µm; with ε̂ in mm, as until
     # issue 22, λ = 0.01 weighed as much as the contour error and cost 12 points on the previous stand-in).
     r = schedule_gains(read_program(STANDIN), load_profile(SEED001), lam=0.0)
     assert r.lam == 0.0

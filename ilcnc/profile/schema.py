@@ -662,7 +662,7 @@ SPECS: tuple[Spec, ...] = (
         "%",
         0,
         100,
-        default=1.0,
+        default=5.0,
     ),
     _f(
         "learning.stop_tolerance_mm",

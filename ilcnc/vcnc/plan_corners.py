@@ -21,8 +21,9 @@ curves and corrected chains.
 
 Each junction's speed is the largest ``v`` (bisection) at which ``|D_i| ≤`` its tolerance and every
 ``|A_i|`` within the axis's acceleration limit. The speeds of the moves around a junction are taken as
-``v`` (the rule is exact at constant speed), so every junction within a slower one's span (``v·`` the
-kernel's reach) is passed at that slower speed too: else a corner whose neighbours' kinks lower its own sum
+``v`` (the rule is exact at constant speed), so every corner within a slower one's span (``v·`` the
+kernel's reach) is passed at that slower speed too (a point on a line, which takes no speed of its own, stays
+one: the line plans as it did without it): else a corner whose neighbours' kinks lower its own sum
 (a corrected point next to it) is summed at one speed and run through at a faster one (compass, one learning
 step: 11.17 µm of rounding for a 10 µm tolerance). The planner's check of the sampled reference against the
 axes' limits catches what a change of speed nearby adds. Arcs add no junction: their own curvature is limited
@@ -153,12 +154,12 @@ def _junction_speeds(s_mm, du, tol, v_cap, acc, alone, g_s, rho, step_s, reach_s
         w = vj * reach_s
         k = j - 1
         while k >= 0 and tol[k] > 0.0 and not alone[k] and s_mm[j] - s_mm[k] < w:
-            if out[k] > vj:
+            if out[k] > vj and math.isfinite(v_cap[k]):
                 out[k] = vj
             k -= 1
         k = j + 1
         while k < n and tol[k] > 0.0 and not alone[k] and s_mm[k] - s_mm[j] < w:
-            if out[k] > vj:
+            if out[k] > vj and math.isfinite(v_cap[k]):
                 out[k] = vj
             k += 1
     return out
