@@ -292,9 +292,9 @@ def stepped():
 def test_stepped_sample_reads(stepped) -> None:
     stepped.require_complete()
     assert stepped.dialect == "heidenhain" and stepped.units == "mm"
-    assert stepped.n_commands == 119  # L Y+0 .. L Y+236 every 2 mm
+    assert stepped.n_commands == 120  # L Y+0 .. L Y+236 every 2 mm, then L Y+244 out of the block
     end = stepped.command_end_mm
-    np.testing.assert_allclose(end[:, 1], np.arange(0.0, 237.0, 2.0))
+    np.testing.assert_allclose(end[:, 1], [*np.arange(0.0, 237.0, 2.0), 244.0])
     np.testing.assert_allclose(end[:, 0], 27.0)
     np.testing.assert_allclose(end[:, 2], -8.0)
     np.testing.assert_allclose(stepped.command_feed_mm_min, 403.4)
@@ -305,10 +305,11 @@ def test_stepped_sample_reads(stepped) -> None:
 
 def test_read_stock_stepped_sample(stepped) -> None:
     ae = read_stock(STEPPED_OMI, stepped, seed004_tool())
-    assert ae.shape == (119,)
+    assert ae.shape == (120,)
     np.testing.assert_array_equal(ae[:40], 9.0)  # 75 % immersion, Y 0..78
     np.testing.assert_array_equal(ae[40:79], 6.0)  # 50 %, Y 80..156
-    np.testing.assert_array_equal(ae[79:], 3.0)  # 25 %, Y 158..236
+    np.testing.assert_array_equal(ae[79:119], 3.0)  # 25 %, Y 158..236
+    assert np.isnan(ae[119])  # the exit move ends beyond the probed face
 
 
 def test_stepped_case_sle(stepped) -> None:
@@ -316,6 +317,7 @@ def test_stepped_case_sle(stepped) -> None:
     ae = read_stock(STEPPED_OMI, stepped, tool)
     c = feed_per_tooth_mm(stepped.command_feed_mm_min, cut.spindle_rpm, tool.teeth)
     sle = sle_per_command_mm(ae, c, tool, cut)
+    assert np.isnan(sle[119])
     zone = {v: sle[ae == v] for v in (9.0, 6.0, 3.0)}
     for v, s in zone.items():
         np.testing.assert_allclose(s, s[0], rtol=1e-12)  # one value per zone
@@ -335,7 +337,7 @@ def test_read_stock_per_command(tmp_path: Path, stepped) -> None:
     p = _write(tmp_path, "stock.csv", "k,stock_mm\n0,9\n5,4.5\n118,3\n")
     ae = read_stock(p, stepped, seed004_tool())
     assert ae[0] == 9.0 and ae[5] == 4.5 and ae[118] == 3.0
-    assert np.isnan(ae[1]) and np.count_nonzero(np.isnan(ae)) == 116
+    assert np.isnan(ae[1]) and np.count_nonzero(np.isnan(ae)) == 117  # 120 commands, 3 listed
     um = read_stock(_write(tmp_path, "um.csv", "k,stock [µm]\n3,2500\n"), stepped, seed004_tool())
     assert um[3] == pytest.approx(2.5)
 
@@ -360,7 +362,7 @@ def test_read_stock_partial_points_and_right_wall(tmp_path: Path, stepped) -> No
         ("x,y,z\n20,10,-4\n", r"s.csv:2: stock point \(20, 10\) \(command k=5\) matches no command: radial depth -1 mm <= 0"),
         ("x,y,z\n30,10\n", r"s.csv:2: expected 3 columns, got 2"),
         ("x,y,z\n30,ten,-4\n", r"s.csv:2: y: 'ten' is not a number"),
-        ("k,stock_mm\n0,9\n119,3\n", r"s.csv:3: k=119 matches no command \(the program has 119 commands\)"),
+        ("k,stock_mm\n0,9\n120,3\n", r"s.csv:3: k=120 matches no command \(the program has 120 commands\)"),
         ("k,stock_mm\n0,9\n0,3\n", r"s.csv:3: duplicate k=0 \(first on line 2\)"),
         ("k,stock_mm\n1.5,9\n", r"s.csv:2: k must be a command index"),
         ("k,stock_mm\n2,13\n", r"s.csv:2: command k=2: radial depth 13 mm is larger than the tool diameter 12 mm"),

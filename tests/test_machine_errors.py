@@ -176,16 +176,30 @@ def test_seed004_stepped_cut_learned_with_gamma_half(tmp_path) -> None:
 
     prof = load_profile(STEPPED_PROFILE)
     prog = read_program(STEPPED)
-    assert prof.learning.gain("gamma", "x") == 0.5 and prof.cutting.enabled
+    assert prof.learning.gain("gamma", "x") == 0.5 and prof.cutting.enabled and prof.learning.error == "surface"
+    assert (prof.tool.helix_deg, prof.tool.runout_um) == (30.0, 30.0)
     res = learn_virtual(prog, prof, iterations=7, stop_on_stall=False, keep_runs=True)
-    assert len(res.iterations) == 8 and all(r.kept for r in res.iterations)
-    rms = [r.stats["rms"] for r in res.iterations]
-    assert all(b <= a for a, b in pairwise(rms)), rms  # monotone
-    zones = [_zone_form_error_um(r.run) for r in res.iterations]
-    z0, z7 = np.array(zones[0]), np.array(zones[-1])
-    # the modelled SLE: larger at 25 % immersion than at 75 % for these modes (docs/papers.md)
-    assert 0.1 < z0[0] < 1.0 and z0[2] > z0[0]
-    assert np.all(z7 <= 0.10 * z0), zones  # >= 90 % of the modelled form error removed in every zone
+    # the max falls under the 1 um stop tolerance after iteration 5: learning stops there (converged)
+    assert len(res.iterations) == 6 and all(r.kept for r in res.iterations)
+    rms = np.array([r.stats["rms"] for r in res.iterations]) * 1e3
+    mx = np.array([r.stats["max"] for r in res.iterations]) * 1e3
+    zones = np.array([_zone_form_error_um(r.run) for r in res.iterations])
+    # the default program (iteration 0), helical model with 30 um runout: 14.05 / 14.57 / 15.05 um; the
+    # figures are deterministic, 0.01 um covers their 3-decimal rounding in docs/papers.md. The paper measured
+    # 8.41 / 11.96 / 17.21 um: these lie within a factor 2 of each (the ranges below), but the model does not
+    # rise with falling immersion as the measurement does (runout's 15 um overcut dominates; docs/papers.md)
+    assert zones[0] == pytest.approx([14.051, 14.568, 15.048], abs=0.01)
+    for got, paper in zip(zones[0], (8.41, 11.96, 17.21), strict=True):
+        assert paper / 2 <= got <= paper * 2
+    assert mx[0] == pytest.approx(15.048, abs=0.01) and rms[0] == pytest.approx(14.220, abs=0.01)
+    # eq. (4) per command with Gamma = 0.5 leaves (1 - Gamma) = half of E(k) per update; the SLE moves a little
+    # with the radial depth the correction changes and corrections are rounded to 0.1 um, so each ratio is
+    # 0.5 +- 0.05 (measured 0.50, 0.50, 0.50, 0.51, 0.47)
+    assert np.all(np.abs(rms[1:] / rms[:-1] - 0.5) < 0.05), rms
+    # the max falls too, with the per-end-point SLE (no step the corrected polyline cannot follow): 15.05 ->
+    # 7.60 -> 3.88 -> 2.13 -> 1.26 -> 0.78 um
+    assert np.all(np.diff(mx) < 0) and mx[-1] < 1.0, mx
+    assert np.all(zones[-1] <= 0.05 * zones[0]), zones  # >= 95 % of the modelled form error removed per zone
     assert res.iterations[0].shares["cutting"]["rms"] > 10 * res.iterations[0].shares["dynamic"]["rms"]
     # the output is a Klartext program that reads back and differs only in corrected coordinate words
     out = tmp_path / "stepped.ilc.h"
@@ -198,15 +212,15 @@ def test_seed004_stepped_cut_learned_with_gamma_half(tmp_path) -> None:
     changed = [i for i, (a, b) in enumerate(zip(src, new, strict=True)) if a != b]
     assert changed and all(coord.sub("", src[i]) == coord.sub("", new[i]).replace("  ", " ") for i in changed)
     u = res.best_record.corrections_mm
-    # X is modal in Klartext: a word is written only where the corrected X changes, yet every end point moved
-    assert np.count_nonzero(u[:, 0]) > 100
     assert np.allclose(back.command_end_mm, prog.command_end_mm + u, atol=1e-9)
-    # the corrections move the tool into the wall side where it bends away (SLE > 0) and out where it bends in
+    # the corrections move the tool into the wall where it bends away (SLE > 0) and out where it overcuts (SLE < 0:
+    # the long flute's 15 um here); every cutting command is corrected, the exit move in the air is not
     sle = ErrorSources.from_profile(prof).sle_mm(prog, prog)
     n = wall_normals(prog, "left")
     toward_wall = np.einsum("ij,ij->i", u, n)
-    cut = (np.abs(sle) > 1e-4) & (u[:, 0] != 0.0)  # the last command stays: the rapid after it has no X word
-    assert cut.sum() > 100 and np.all(np.sign(toward_wall[cut]) == np.sign(sle[cut]))
+    cut = np.abs(sle) > 1e-4
+    assert cut.sum() == 119 and np.all(np.sign(toward_wall[cut]) == np.sign(sle[cut]))
+    assert np.all(u[~cut] == 0.0)
 
 
 BAD_MAPS = REPO / "tests" / "data" / "volumetric"

@@ -441,6 +441,9 @@ def _cross_checks(d: dict[str, Any], fail: _Fail) -> None:
             fail(("cutting", "radial_depth_mm"), f"must be <= tool.diameter_mm ({format_number(tool['diameter_mm'])} mm),"
                                                  f" got {format_number(cut['radial_depth_mm'])}")
     lr = d["learning"]
+    if lr["error"] == "surface" and cut["model"] == "none":
+        fail(("learning", "error"), "surface is the wall the cutting error model leaves: it needs cutting.model"
+                                    " mechanistic")
     if lr["model_steps"]:
         law = lr["law"]
         kind = lr["error"] if lr["error"] != "auto" else DEFAULT_ERROR[law]

@@ -206,7 +206,7 @@ _CUT_M = ("cutting.model", "mechanistic")
 #: Default error estimate of each law (``learning.error: auto``).
 DEFAULT_ERROR = {"p": "path", "pid_ace": "contour", "second_order": "tracking"}
 #: The estimates (profile key ``learning.error``, ``auto`` aside).
-ERROR_KINDS = ("path", "crossing", "contour", "tangent", "tracking", "lifted")
+ERROR_KINDS = ("path", "crossing", "contour", "tangent", "tracking", "lifted", "surface")
 #: The estimates the virtual CNC predicts from a run (``learning.model_steps`` needs one of them).
 PREDICTED_ERRORS = ("path", "crossing", "lifted")
 #: Laws whose update keeps a history of more than the last run (they take no model-assisted step).
@@ -624,13 +624,15 @@ SPECS: tuple[Spec, ...] = (
         "learning.error",
         "Error E(k) the law learns from. path: hat-weighted mean contour error of the two moves that meet"
         " at the end point of command k (least squares over the whole path); crossing: end point of command k"
-        " minus the actual position where the machine passes closest to it (seed 004's point error); contour:"
+        " minus the actual position where the machine passes closest to it (seed 004's point error); surface: the"
+        " wall the tool leaves per command, seed 004's eq. (4) with its sign corrected, E(k) = (SLE(k) − u(k)·n)·n"
+        " with n the normal toward the wall (needs cutting.model mechanistic); contour:"
         " exact contour error vector when the reference reaches the end of command k (seed 000's ACE);"
         " tangent: seed 000's Frenet-frame estimate at that instant; tracking: end point minus actual at that"
         " instant (seed 003); lifted: the end-point moves that, through the drive models, best cancel the"
         " sampled contour error (damped least squares; sees corners; docs/learning.md); auto: path for p (lifted"
         " when the program is refined: learn --refine), contour for pid_ace, tracking for second_order.",
-        ("auto", "path", "crossing", "contour", "tangent", "tracking", "lifted"),
+        ("auto", *ERROR_KINDS),
         default="auto",
     ),
     _f("learning.iterations", "Largest number of learning iterations.", "", 1, 1000, default=5, kind="int"),
@@ -777,7 +779,13 @@ SPECS: tuple[Spec, ...] = (
     ),
     _sec("tool", "The cutting tool: size and its frequency response at the tool tip (seed 004's SLE model)."),
     _f("tool.diameter_mm", "Tool diameter.", "mm", 0, 200, lo_open=True, default=12.0),
-    _f("tool.teeth", "Number of teeth (flutes), straight flutes.", "", 1, 20, default=2, kind="int"),
+    _f("tool.teeth", "Number of teeth (flutes), evenly spaced.", "", 1, 20, default=2, kind="int"),
+    _f("tool.helix_deg", "Helix angle of the flutes (right-hand helix); 0: straight flutes. A helix or runout"
+       " switches the SLE to the helical model (ilcnc/vcnc/helix_sle.py).", "°", 0, 80, hi_open=True, default=0.0),
+    _f("tool.runout_um", "Radial runout of the tool as a dial indicator reads it on the flutes (total indicator"
+       " reading); the flutes cut at radii R ± TIR/2.", "µm", 0, 1000, default=0.0),
+    _f("tool.runout_angle_deg", "Direction of the runout offset from flute 1 (0: flute 1 cuts at the largest"
+       " radius).", "°", -360, 360, default=0.0),
     Spec(
         "tool.modes",
         "modes",

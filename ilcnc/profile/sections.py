@@ -581,10 +581,19 @@ class ToolSection:
         Modal parameters of the tool tip.
     frf_csv : str or None
         Measured FRF file as written in the profile.
+    helix_deg : float
+        Helix angle, degrees (0: straight flutes).
+    runout_um : float
+        Radial runout, total indicator reading, µm.
+    runout_angle_deg : float
+        Direction of the runout offset from flute 1, degrees.
     """
 
     diameter_mm: float = default_of("tool.diameter_mm")
     teeth: int = default_of("tool.teeth")
+    helix_deg: float = default_of("tool.helix_deg")
+    runout_um: float = default_of("tool.runout_um")
+    runout_angle_deg: float = default_of("tool.runout_angle_deg")
     modes: tuple[ToolMode, ...] | None = default_of("tool.modes")
     frf_csv: str | None = default_of("tool.frf_csv")
 

@@ -19,6 +19,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'read_stock', 'seed004_cutting', 'seed004_tool', 'sle_frequency_domain_mm', 'sle_per_command_mm',
         'sle_time_domain_mm', 'tool_displacement_mm', 'tooth_force_n'
     ),
+    'helix_sle': ('flute_radius_offsets_mm', 'sle_helical_per_command_mm', 'sle_helical_profile_mm'),
     'discrete': ('DELAY_SNAP', 'DiscreteModel', 'DriveModelError', 'FRICTION_SUBSTEP_S', 'STANDSTILL_MM', 'discrete_model'),
     'drive_loop': ('direction_normals', 'path_normals'),
     'drives': (

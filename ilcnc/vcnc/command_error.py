@@ -191,6 +191,9 @@ def command_signal_from_run(
         v, _n = tangent_error(path.end_mm[path.move_of_command], actual_mm[idx], tangent=command_end_tangents(path))
     elif kind == "tracking":
         v = path.end_mm[path.move_of_command] - actual_mm[idx]
+    elif kind == "surface":
+        raise ValueError("error estimate 'surface' is the virtual CNC's wall (seed 004 eq. 4): a measured log has"
+                         " none; set learning.error to crossing")
     else:
         raise ValueError(f"unknown error estimate {kind!r}")
     e[ok] = v[ok]
@@ -571,6 +574,13 @@ def signal_of_simulation(sim: Any, original: Program, kind: str, gate_mm: float 
     ref = sim.reference
     path = sim.error.path
     cs = None
+    if kind == "surface":
+        if getattr(sim, "surface", None) is None:
+            raise ValueError("error estimate 'surface' needs the cutting error model (cutting.model mechanistic)")
+        e, ok = sim.surface
+        cs = reference_command_samples(ref.move, original.command_moves)
+        return finish_signal(np.where(ok[:, None], e, np.nan), np.asarray(cs, dtype=np.float64) * ref.period_s,
+                             "surface")
     if kind not in ("crossing", "path"):
         cs = reference_command_samples(ref.move, original.command_moves)
     # uniform samples from t = 0: the period stands for the N-long time array (only ``crossing`` needs it)

@@ -266,12 +266,23 @@ class Tool:
     frf_feed : ModalFRF or MeasuredFRF or None
         Direct receptance in the feed direction (x), m/N; ``None``: same as
         ``frf_normal`` (a symmetric tool). It does not enter the SLE.
+    helix_deg : float
+        Helix angle, degrees, 0 ≤ β < 80 (0: straight flutes, this module's model).
+    runout_um : float
+        Radial runout as a dial indicator reads it (total indicator reading), µm, ≥ 0.
+    runout_angle_deg : float
+        Direction of the runout offset from flute 0, degrees.
+
+    A helix or runout needs :mod:`ilcnc.vcnc.helix_sle`; :func:`sle_per_command_mm` refuses them.
     """
 
     diameter_mm: float
     teeth: int
     frf_normal: FRF
     frf_feed: FRF | None = None
+    helix_deg: float = 0.0
+    runout_um: float = 0.0
+    runout_angle_deg: float = 0.0
 
     @property
     def radius_mm(self) -> float:
@@ -284,6 +295,13 @@ class Tool:
         if not (isinstance(self.teeth, (int, np.integer)) and self.teeth >= 1):
             raise ValueError(f"tool.teeth must be an integer >= 1, got {self.teeth!r}")
         self.frf_normal.validate("tool.frf_normal")
+        h = self.helix_deg
+        if not (isinstance(h, (int, float, np.floating, np.integer)) and math.isfinite(h) and 0.0 <= h < 80.0):
+            raise ValueError(f"tool.helix_deg must be in [0, 80), got {h!r}")
+        _nonnegative("tool.runout_um", self.runout_um)
+        a = self.runout_angle_deg
+        if not (isinstance(a, (int, float, np.floating, np.integer)) and math.isfinite(a)):
+            raise ValueError(f"tool.runout_angle_deg must be a finite number, got {a!r}")
         if self.frf_feed is not None:
             self.frf_feed.validate("tool.frf_feed")
 
@@ -830,6 +848,8 @@ def sle_per_command_mm(
     """
     tool.validate()
     cutting.validate()
+    if tool.helix_deg != 0.0 or tool.runout_um != 0.0:
+        raise ValueError("the tool has a helix or runout: use ilcnc.vcnc.helix_sle.sle_helical_per_command_mm")
     samples = _even_samples(samples)
     ae = np.atleast_1d(np.asarray(radial_depth_mm, dtype=np.float64))
     if ae.ndim != 1:

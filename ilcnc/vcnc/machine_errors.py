@@ -121,7 +121,8 @@ class ErrorSources:
                                                        " (perpendicular to the wall)")
             frf_normal = dfl.ModalFRF(normal)
             frf_feed = dfl.ModalFRF(feed) if feed else None
-        tool = dfl.Tool(t.diameter_mm, t.teeth, frf_normal, frf_feed)
+        tool = dfl.Tool(t.diameter_mm, t.teeth, frf_normal, frf_feed, helix_deg=t.helix_deg, runout_um=t.runout_um,
+                        runout_angle_deg=t.runout_angle_deg)
         assert c.ktc_n_mm2 is not None and c.krc_n_mm2 is not None
         assert c.axial_depth_mm is not None and c.spindle_rpm is not None
         cutting = dfl.Cutting(c.ktc_n_mm2, c.krc_n_mm2, c.axial_depth_mm, c.spindle_rpm,
@@ -172,8 +173,37 @@ class ErrorSources:
         cutting = np.isfinite(ae) & (ae > 0.0)
         ae_c = np.clip(np.where(cutting, ae, np.nan), None, self.tool.diameter_mm)
         fz = dfl.feed_per_tooth_mm(running.command_feed_mm_min, self.cutting.spindle_rpm, self.tool.teeth)
-        sle = dfl.sle_per_command_mm(ae_c, fz, self.tool, self.cutting)
+        if self.tool.helix_deg != 0.0 or self.tool.runout_um != 0.0:
+            from ilcnc.vcnc.helix_sle import sle_helical_per_command_mm
+
+            sle = sle_helical_per_command_mm(ae_c, fz, self.tool, self.cutting)
+        else:
+            sle = dfl.sle_per_command_mm(ae_c, fz, self.tool, self.cutting)
         return np.where(cutting & np.isfinite(sle), sle, 0.0)
+
+    def surface_error_mm(self, running: Program, original: Program) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """Seed 004's eq. (4) per command, its sign corrected: the wall the tool leaves against the drawing's.
+
+        ``E(k) = X_ref − (X_cmd − R + δ)`` in the wall's frame: with ``n`` the unit normal from the path toward
+        the wall, ``u(k)`` the running program's end point minus the drawing's and ``δ = SLE(k)`` (> 0: the tool
+        bends away from the wall, material is left), the wall lies ``u·n − SLE`` into the material from the
+        drawing's, so ``E(k) = (SLE(k) − u(k)·n)·n`` (desired minus actual, mm). The learning's ``U += Γ·E``
+        moves the tool toward the wall where it bends away.
+
+        Returns
+        -------
+        e_mm : ndarray (K, 3)
+            E(k), mm; 0 where the command does not cut.
+        valid : ndarray (K,) bool
+            The command cuts (a known radial depth > 0).
+        """
+        ae = self.radial_depth_mm(running, original)
+        valid = np.isfinite(ae) & (ae > 0.0)
+        sle = self.sle_mm(running, original)
+        n = wall_normals(original, self.wall)
+        u = running.command_end_mm - original.command_end_mm
+        along = sle - np.einsum("ij,ij->i", u, n)
+        return np.where(valid[:, None], along[:, None] * n, 0.0), valid
 
     # ------------------------------------------------------------------------------------------
     # per sample
@@ -221,11 +251,25 @@ class ErrorSources:
         if self.cutting is not None:
             sle = self.sle_mm(running, original)
             n = wall_normals(original, self.wall)
-            per_cmd = -sle[:, None] * n  # the tool bends away from the wall
             k = np.asarray(sample_command, dtype=np.int64)
             d = np.zeros_like(actual_mm)
             on = k >= 0
-            d[on] = per_cmd[k[on]]
+            kk = k[on]
+            # the SLE is known where the radial depth is, at the end points; along command k it goes linearly
+            # from the end point before it (0 after a rapid or an air move) to its own, as the corrected end
+            # points do: a stock step inside a command is spread over it, not put at its start
+            idx = running.command_moves
+            prev = np.zeros_like(sle)
+            joined = idx[1:] == idx[:-1] + 1
+            prev[1:] = np.where(joined, sle[:-1], 0.0)
+            a = running.moves.start_mm[idx[kk], :2]
+            b = running.moves.end_mm[idx[kk], :2]
+            ab = b - a
+            length2 = np.einsum("ij,ij->i", ab, ab)
+            f = np.einsum("ij,ij->i", actual_mm[on, :2] - a, ab) / np.where(length2 > 0.0, length2, 1.0)
+            f = np.where(length2 > 0.0, np.clip(f, 0.0, 1.0), 1.0)
+            s = prev[kk] + f * (sle[kk] - prev[kk])
+            d[on] = -s[:, None] * n[kk]  # the tool bends away from the wall
             out["cutting"] = d
         return out
 

@@ -74,6 +74,8 @@ class SimulationResult:
     air_stats: ErrorFigures = field(default_factory=ErrorFigures)
     cutting: CuttingRule = field(default_factory=lambda: CuttingRule(None, "none"))
     worst_at: dict[str, int] | None = None  # command and line of the worst sample on the judged path
+    #: seed 004's eq. (4) per command with the cutting error on (ErrorSources.surface_error_mm): E(k) and valid
+    surface: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None
 
     @property
     def cycle_time_s(self) -> float:
@@ -206,6 +208,7 @@ def simulate_program(
         sources = ErrorSources.from_profile(profile)
     rule, classes = profile_move_classes(target, profile)
     shares: dict[str, dict[str, float]] = {}
+    surface = None
     if sources.enabled and move_map is not None:
         raise InputError(against.path if against is not None else None, None, "--against a program with fewer points"
                          " (a refined output) is not modelled with geometric or cutting errors on")
@@ -218,6 +221,8 @@ def simulate_program(
         _feed, shares["dynamic"], _w = _feed_stats(ref.move, classes, err_dyn.dist_mm)
         del err_dyn
         disp = sources.displacements_mm(act, ref.command, program, target, ref.line)
+        if sources.cutting is not None:
+            surface = sources.surface_error_mm(program, target)
         for name, d in disp.items():
             _feed, shares[name], _w = _feed_stats(ref.move, classes, np.sqrt(np.einsum("ij,ij->i", d, d)))
             act += d
@@ -240,7 +245,7 @@ def simulate_program(
         worst_at = {"k": int(target.moves.command[seg]), "line": int(target.moves.line[seg])}
     return SimulationResult(reference=ref, actual_mm=act, error=err, feed_mask=feed, stats=stats, worst_sample=worst,
                             timings_s=timings, shares=shares, air_stats=acc.air_result(), cutting=rule,
-                            worst_at=worst_at)
+                            worst_at=worst_at, surface=surface)
 
 
 
