@@ -32,7 +32,8 @@ import sys
 import threading
 from collections.abc import Iterator
 
-__all__ = ["available_cores", "limit_process", "set_thread_limit", "thread_limit", "thread_limit_scope", "threads_per_part"]
+__all__ = ["available_cores", "limit_process", "one_blas_thread", "set_thread_limit", "thread_limit", "thread_limit_scope",
+           "threads_per_part"]
 
 #: Environment variables read by BLAS/OpenMP/numba when they are loaded.
 THREAD_ENV_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS",
@@ -40,6 +41,7 @@ THREAD_ENV_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
 
 _process_limit: int | None = None
 _local = threading.local()
+_blas_controller: object | None = None
 
 
 def available_cores() -> int:
@@ -87,6 +89,27 @@ def thread_limit_scope(n: int | None) -> Iterator[int]:
         yield thread_limit()
     finally:
         _local.limit = prev
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """Run the block on one BLAS thread (the BLAS libraries loaded at the first call; a no-op without threadpoolctl).
+
+    For tiny matrices (a drive model's 4x4 exponential): OpenBLAS computes them on one thread anyway, so the
+    results are the same, but with its pool of threads it spent 9-16 ms per 4x4 ``scipy.linalg.expm`` on the
+    shared 2-core machine against 0.04 ms on one thread (70 ms of a 1.3 s ``ilcnc simulate``, issue 24).
+    The libraries are looked up once per process (12 ms; entering the block later costs 0.1 ms).
+    """
+    global _blas_controller
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        yield
+        return
+    if _blas_controller is None:
+        _blas_controller = ThreadpoolController()
+    with _blas_controller.limit(limits=1, user_api="blas"):  # type: ignore[attr-defined]
+        yield
 
 
 def threads_per_part(workers: int, cores: int | None = None) -> int:

@@ -115,9 +115,12 @@ def cont2discrete_zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarr
     """``ad, bd`` of ``scipy.signal.cont2discrete((A, B, C, D), dt, method="zoh")`` (``b`` is (n, m))."""
     from scipy.linalg import expm  # ~0.25 s, and only when a drive model is discretised
 
+    from ilcnc._threads import one_blas_thread
+
     em_upper = np.hstack((a, b))
     em_lower = np.hstack((np.zeros((b.shape[1], a.shape[0])), np.zeros((b.shape[1], b.shape[1]))))
     em = np.vstack((em_upper, em_lower))
-    ms = expm(dt * em)
+    with one_blas_thread():  # a 4x4 exponential: OpenBLAS's thread pool only makes it 300x slower (issue 24)
+        ms = expm(dt * em)
     ms = ms[: a.shape[0], :]
     return ms[:, 0 : a.shape[1]], ms[:, a.shape[1] :]
