@@ -143,6 +143,9 @@ def _load_numba() -> Any:
             return _numba
         if not HAVE_NUMBA:  # pragma: no cover - a stand-in is only made when numba is there
             raise RuntimeError("numba is not installed")
+        from ilcnc._lazy import defer_numpy_extras
+
+        defer_numpy_extras()  # numba's first kernel imports scipy.linalg (issue 24: start-up)
         import numba
 
         _install_compile_listener(numba)

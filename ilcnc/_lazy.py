@@ -9,10 +9,17 @@ not the whole virtual CNC (start-up time: a command imports only what it runs).
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import sys
+import threading
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["lazy_exports"]
+__all__ = ["defer_numpy_extras", "lazy_exports"]
+
+#: numpy submodules that SciPy's array-API layer imports without using them, and no ilcnc command uses.
+NUMPY_EXTRAS = ("numpy.f2py", "numpy.testing")
+_defer_lock = threading.Lock()
 
 
 def lazy_exports(package: str, table: dict[str, tuple[str, ...]]
@@ -30,3 +37,34 @@ def lazy_exports(package: str, table: dict[str, tuple[str, ...]]
         return sorted(owner)
 
     return __getattr__, __dir__, sorted(owner)
+
+
+def defer_numpy_extras() -> list[str]:
+    """Make :data:`NUMPY_EXTRAS` load on first use instead of at ``import scipy.linalg``; returns the ones deferred.
+
+    ``scipy.linalg`` (imported by numba when it loads its first kernel, for its BLAS check, and by the drive
+    models' matrix exponential) copies every public attribute of numpy at import
+    (``scipy._lib.array_api_compat.numpy``), and reading ``numpy.f2py`` and ``numpy.testing`` imports them:
+    0.06-0.12 s and 0.01-0.03 s (``unittest``) of a 1 s ``ilcnc simulate`` (issue 24). Each one not
+    imported yet is put in ``sys.modules`` as a lazy module (:class:`importlib.util.LazyLoader`, standard
+    library): it is the same module, and its code runs when one of its attributes is first read.
+    """
+    done: list[str] = []
+    numpy = sys.modules.get("numpy")
+    if numpy is None:
+        return done
+    with _defer_lock:
+        for name in NUMPY_EXTRAS:
+            if name in sys.modules:
+                continue
+            spec = importlib.util.find_spec(name)
+            if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+                continue
+            loader = importlib.util.LazyLoader(spec.loader)
+            spec.loader = loader
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            loader.exec_module(module)
+            setattr(numpy, name.rpartition(".")[2], module)  # as an import does: numpy.__getattr__ is not asked
+            done.append(name)
+    return done

@@ -139,6 +139,25 @@ def test_the_command_line_and_the_run_modules_import_neither_numba_nor_scipy_sig
     assert res.stdout.strip() == "[]"
 
 
+def test_scipy_linalg_leaves_numpys_extras_unloaded_until_used() -> None:
+    # what ilcnc does before numba's first kernel and the drive models' expm: scipy.linalg then reads
+    # numpy.f2py and numpy.testing without running them; they run (and work) when first used
+    res = _run_python("""
+        import sys
+        import numpy
+        from ilcnc._lazy import defer_numpy_extras
+        print(defer_numpy_extras())
+        import scipy.linalg
+        print("numpy.f2py.rules" in sys.modules, "unittest" in sys.modules)
+        from numpy.testing import assert_array_equal
+        assert_array_equal(scipy.linalg.expm(numpy.zeros((2, 2))), numpy.eye(2))
+        print(numpy.f2py.__name__, "numpy.f2py.rules" in sys.modules or hasattr(numpy.f2py, "run_main"),
+              "unittest" in sys.modules, defer_numpy_extras())
+    """)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines() == ["['numpy.f2py', 'numpy.testing']", "False False", "numpy.f2py True True []"]
+
+
 def test_inspect_runs_without_numba() -> None:
     res = _run_python(f"""
         import sys

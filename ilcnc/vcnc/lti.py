@@ -113,9 +113,11 @@ def ss2tf(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> tuple[n
 
 def cont2discrete_zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """``ad, bd`` of ``scipy.signal.cont2discrete((A, B, C, D), dt, method="zoh")`` (``b`` is (n, m))."""
-    from scipy.linalg import expm  # ~0.25 s, and only when a drive model is discretised
-
+    from ilcnc._lazy import defer_numpy_extras
     from ilcnc._threads import one_blas_thread
+
+    defer_numpy_extras()  # before scipy.linalg's import (issue 24: start-up)
+    from scipy.linalg import expm  # ~0.25 s, and only when a drive model is discretised
 
     em_upper = np.hstack((a, b))
     em_lower = np.hstack((np.zeros((b.shape[1], a.shape[0])), np.zeros((b.shape[1], b.shape[1]))))
