@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -72,10 +73,19 @@ def _ilcnc() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "ilcnc"]
 
 
+#: CPU time (user + system) of the last :func:`_run`'s process, s.
+last_cpu_s = 0.0
+
+
 def _run(argv: list[str], env: dict[str, str]) -> tuple[float, subprocess.CompletedProcess[str]]:
+    """Wall time and result of one process (its CPU time in :data:`last_cpu_s`)."""
+    global last_cpu_s
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     res = subprocess.run(argv, env=env, capture_output=True, text=True, cwd=ROOT)
     dt = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    last_cpu_s = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if res.returncode != 0:
         raise SystemExit(f"{' '.join(argv)}: exit {res.returncode}: {res.stderr.strip()[-500:]}")
     return dt, res
@@ -104,17 +114,22 @@ def main(argv: list[str] | None = None) -> int:
     print(f"program  {args.program.name}: cycle time {cycle:,.1f} s ({figures['samples']:,} samples), "
           f"contour error max {figures['contour_error_mm']['max'] * 1e3:.2f} um")
     print(f"command  {' '.join(Path(c).name if i == 0 else c for i, c in enumerate(cmd))}")
-    rows: list[tuple[str, list[float]]] = []
+    rows: list[tuple[str, list[float], list[float]]] = []
     for name, argv_ in (("python -c pass", [sys.executable, "-c", "pass"]),
                         ("ilcnc --version", [*_ilcnc(), "--version"]),
                         ("ilcnc simulate", cmd)):
         _run(argv_, env)  # warm-up
-        rows.append((name, [_run(argv_, env)[0] for _ in range(max(args.runs, 1))]))
-    print(f"\nwarm: wall time of the whole process, s (best / median / max of {max(args.runs, 1)})")
-    for name, times in rows:
+        walls, cpus = [], []
+        for _ in range(max(args.runs, 1)):
+            walls.append(_run(argv_, env)[0])
+            cpus.append(last_cpu_s)
+        rows.append((name, walls, cpus))
+    print(f"\nwarm: wall time of the whole process, s (best / median / max of {max(args.runs, 1)}), its CPU time"
+          " (user + system) and real time / wall")
+    for name, times, cpus in rows:
         best, med = min(times), statistics.median(times)
-        print(f"  {name:18s} {best:6.3f} {med:6.3f} {max(times):6.3f}   real time / wall: best {cycle / best:7.0f}x,"
-              f" median {cycle / med:7.0f}x")
+        print(f"  {name:18s} {best:6.3f} {med:6.3f} {max(times):6.3f}   CPU {min(cpus):6.3f}-{max(cpus):6.3f}   "
+              f"best {cycle / best:7.0f}x, median {cycle / med:7.0f}x")
     sim = rows[-1][1]
     best = min(sim)
     ratio = cycle / best

@@ -31,19 +31,17 @@ After filtering, every axis's velocity, acceleration and jerk are checked on the
 differences); where a limit would be exceeded (e.g. a reversal, which doubles a velocity jump) the speed of the
 moves around it is lowered and that group is planned again.
 
-Rapids and feed moves form separate *groups* with their own time constants
-(rapids are much faster); the planner comes to a stop between groups.
+Rapids and feed moves form separate *groups* with their own time constants (rapids are much faster); the planner
+comes to a stop between groups.
 
 Path control
 ------------
-The program's own path control mode (``MoveTable.blend_tol_mm``, set by
-G-code ``G61``/``G61.1``/``G64 [P]`` and Klartext cycle 32) is applied per
-corner, as LinuxCNC's trajectory planner does (``tp.c``/``tc.c``, 2.9):
+The program's own path control mode (``MoveTable.blend_tol_mm``, set by G-code ``G61``/``G61.1``/``G64 [P]`` and
+Klartext cycle 32) is applied per corner, as LinuxCNC's trajectory planner does (``tp.c``/``tc.c``, 2.9):
 
-* the move *before* a corner decides whether it is blended or stopped at
-  (LinuxCNC stores the mode in each segment when it is queued and checks the
-  previous segment's ``term_cond`` at the junction). A move without a
-  program setting (NaN) takes the profile's ``corner_tolerance_mm``;
+* the move *before* a corner decides whether it is blended or stopped at (LinuxCNC stores the mode in each segment
+  when it is queued and checks the previous segment's ``term_cond`` at the junction). A move without a program
+  setting (NaN) takes the profile's ``corner_tolerance_mm``;
 * exact path (``G61``, tolerance 0): stop at the corner, but pass a tangent
   join at speed; exact stop (``G61.1``): stop at the end of every move;
 * blending: the corner tolerance is the smaller of the two moves'
@@ -366,8 +364,12 @@ class ReferenceChunk:
         return int(self.pos_mm.shape[0])
 
 
-#: Samples per chunk of :func:`plan_chunks` by default: ~0.3 GB of reference, actual and contour error.
-DEFAULT_CHUNK_SAMPLES = 2_000_000
+#: Samples per chunk of :func:`plan_chunks` (~40 MB of reference, actual and contour error): small enough that
+#: the arrays (6 MB) come back from the heap; 2 M-sample chunks were mapped and zeroed fresh each time (0.3-0.6 s of
+#: system time of a 1 s simulate of Gates_combined_R12, 2.2 s of stellabee1's 11 s; 0.03-0.16 s here, issue 24).
+DEFAULT_CHUNK_SAMPLES = 262_144
+#: Piece size of :func:`planned_move_times_s` (it counts samples, assembles no chunk: larger is cheaper).
+_DURATION_PIECE_SAMPLES = 2_000_000 - 2_000_000 % BLOCK_SAMPLES
 
 
 def plan_chunks(program: object, profile: MachineProfile, *, chunk_samples: int = DEFAULT_CHUNK_SAMPLES,
@@ -432,7 +434,7 @@ def planned_duration_s(program: object, profile: MachineProfile) -> float:
 def planned_move_times_s(program: object, profile: MachineProfile) -> tuple[NDArray[np.float64], float]:
     """Each move's planned time (M,) and the cycle time, s, counted from :func:`plan_chunks`' pieces as they are
     planned (no chunk is assembled, no sample held)."""
-    moves, pieces = _profile_pieces(program, profile, DEFAULT_CHUNK_SAMPLES - DEFAULT_CHUNK_SAMPLES % BLOCK_SAMPLES, None)
+    moves, pieces = _profile_pieces(program, profile, _DURATION_PIECE_SAMPLES, None)
     counts, n = np.zeros(len(moves), np.int64), 0
     for pos, mv in pieces:
         n += pos.shape[0]

@@ -10,7 +10,7 @@ each chunk with their state carried on (:class:`ilcnc.vcnc.drives.DriveStream`),
 measures its contour error (sample by sample, so exact per chunk) and adds it
 to the running statistics (:class:`ilcnc.vcnc.simulate.FeedStats`) and ``E(k)``
 sums (:class:`ilcnc.vcnc.command_error.PathWeightedSums`), then drops the chunk.
-Memory: one chunk (~150 B per sample, 0.3 GB at the default 2 M samples) plus
+Memory: one chunk (~150 B per sample, 40 MB at the default 262,144 samples) plus
 the program's tables. The figures are those of the whole run bit for bit (the
 tests check it), so the learning loop takes this path whenever it can
 (:func:`stream_unsupported`): the ``path`` error estimate, linear drives, no
