@@ -52,6 +52,7 @@ def mark(name, t=[t0]):
 gc.set_threshold(50_000, 10, 10)  # as ilcnc.cli.main
 import numpy; mark("import numpy")
 import ilcnc.cli; mark("import ilcnc.cli (typer, rich)")
+import typer._adapters; mark("import pydantic (typer parses options with it)")
 from ilcnc.profile.load import load_profile
 from ilcnc.program import read_program
 from ilcnc.vcnc.run import simulate_figures
@@ -60,7 +61,9 @@ prof = load_profile(sys.argv[2]); mark("load_profile")
 prog = read_program(sys.argv[1], default_units=prof.machine.units); mark("read_program")
 from ilcnc._jit import _load_numba
 _load_numba(); mark("import numba")
-first = simulate_figures(prog, prof); mark("simulate, first call of the process")
+from numba.core.registry import cpu_target
+cpu_target.target_context.refresh(); mark("numba's set-up before a first kernel")
+first = simulate_figures(prog, prof); mark("simulate (loads its kernels)")
 t = time.perf_counter(); again = simulate_figures(prog, prof); mark("simulate again (kernels loaded)")
 json.dumps(again.to_json(prog))
 print(json.dumps({"marks": marks, "first": first.timings_s, "again": again.timings_s}))
@@ -148,8 +151,12 @@ def main(argv: list[str] | None = None) -> int:
         _dt, res = _run([sys.executable, "-c", STAGES, str(args.program), str(args.profile)], env)
         st = json.loads(res.stdout.strip().splitlines()[-1])
         print("\nstages of one process (perf_counter inside it; interpreter start-up and exit not included), s")
-        for name, secs in st["marks"]:
-            print(f"  {name:40s} {secs:6.3f}")
+        total = 0.0
+        for name, secs in st["marks"][:-1]:
+            total += secs
+            print(f"  {name:46s} {secs:6.3f}")
+        print(f"  {'sum (what one command does)':46s} {total:6.3f}")
+        print(f"  {st['marks'][-1][0]:46s} {st['marks'][-1][1]:6.3f}")
         for key in ("first", "again"):
             print(f"  simulate {key:5s}: " + "  ".join(f"{k} {v:.3f}" for k, v in st[key].items()))
     print(f"load average after: {_load()}")

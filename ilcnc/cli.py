@@ -206,7 +206,6 @@ def simulate(
     debug: DebugOption = False,
 ) -> None:
     """Run PROGRAM on the virtual CNC: planned reference, drive models, contour error."""
-    from ilcnc.axislog.log import write_axis_log
     from ilcnc.profile.load import load_profile
     from ilcnc.program import read_program
     from ilcnc.vcnc import simulate as sim_mod
@@ -237,6 +236,8 @@ def simulate(
         else:
             result = _simulate_with_progress(prog, prof, orig, console, log_out is not None)
         if log_out is not None:
+            from ilcnc.axislog.log import write_axis_log
+
             protect = (program, profile) + ((against,) if against is not None else ())
             write_axis_log(log_out, result.axis_log(), protect=protect)
     except IlcncError as exc:
