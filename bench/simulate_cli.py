@@ -6,6 +6,8 @@ Usage (from the repository root, in the project's environment)::
     python bench/simulate_cli.py --cold          # also one run with a fresh, empty NUMBA_CACHE_DIR
     python bench/simulate_cli.py PROG --runs 9   # another program, best of 9
     python bench/simulate_cli.py --check         # exit 1 when the warm ratio is below the target
+    python bench/simulate_cli.py --before DIR    # also the ilcnc of another checkout (e.g. a git worktree of
+                                                 # an older commit), same interpreter and packages
 
 Every timed run is the whole command as its own process, as a user types it
 (``ilcnc simulate PROG --profile PROFILE``, the table on stdout): interpreter start-up, imports, numba
@@ -106,6 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cold", action="store_true", help="also one run with a fresh, empty NUMBA_CACHE_DIR")
     ap.add_argument("--stages", action="store_true", help="also where the time of one process goes")
     ap.add_argument("--check", action="store_true", help="exit 1 when the warm ratio misses the target")
+    ap.add_argument("--before", type=Path, help="a checkout of another ilcnc (its root): timed as 'before' in the same"
+                    " run (python -m ilcnc with PYTHONPATH=DIR; its numba cache is filled by the warm-up)")
     args = ap.parse_args(argv)
     env = dict(os.environ)
     env.pop("PYTHONDONTWRITEBYTECODE", None)
@@ -118,13 +122,22 @@ def main(argv: list[str] | None = None) -> int:
           f"contour error max {figures['contour_error_mm']['max'] * 1e3:.2f} um")
     print(f"command  {' '.join(Path(c).name if i == 0 else c for i, c in enumerate(cmd))}")
     rows: list[tuple[str, list[float], list[float]]] = []
-    for name, argv_ in (("python -c pass", [sys.executable, "-c", "pass"]),
-                        ("ilcnc --version", [*_ilcnc(), "--version"]),
-                        ("ilcnc simulate", cmd)):
-        _run(argv_, env)  # warm-up
+    timed = [("python -c pass", [sys.executable, "-c", "pass"], env),
+             ("ilcnc --version", [*_ilcnc(), "--version"], env)]
+    if args.before is not None:
+        old_env = dict(env, PYTHONPATH=str(args.before.resolve()))
+        old_cmd = [sys.executable, "-m", "ilcnc", *cmd[len(_ilcnc()):]]
+        _dt, res = _run([*old_cmd, "--json"], old_env)
+        same = {k: v for k, v in json.loads(res.stdout).items() if k != "program"} == {
+            k: v for k, v in figures.items() if k != "program"}
+        print(f"before   {args.before}: the same figures: {same}")
+        timed.append(("before: simulate", old_cmd, old_env))
+    timed.append(("ilcnc simulate", cmd, env))
+    for name, argv_, run_env in timed:
+        _run(argv_, run_env)  # warm-up
         walls, cpus = [], []
         for _ in range(max(args.runs, 1)):
-            walls.append(_run(argv_, env)[0])
+            walls.append(_run(argv_, run_env)[0])
             cpus.append(last_cpu_s)
         rows.append((name, walls, cpus))
     print(f"\nwarm: wall time of the whole process, s (best / median / max of {max(args.runs, 1)}), its CPU time"

@@ -364,12 +364,9 @@ class ReferenceChunk:
         return int(self.pos_mm.shape[0])
 
 
-#: Samples per chunk of :func:`plan_chunks` (~40 MB of reference, actual and contour error): small enough that
-#: the arrays (6 MB) come back from the heap; 2 M-sample chunks were mapped and zeroed fresh each time (0.3-0.6 s of
-#: system time of a 1 s simulate of Gates_combined_R12, 2.2 s of stellabee1's 11 s; 0.03-0.16 s here, issue 24).
+#: Samples per chunk of :func:`plan_chunks` by default (~40 MB): its arrays (<= 6 MB) are re-used from the heap,
+#: where 2 M samples (48 MB arrays) were mapped and zeroed fresh for each chunk (issue 24; docs/learning.md).
 DEFAULT_CHUNK_SAMPLES = 262_144
-#: Piece size of :func:`planned_move_times_s` (it counts samples, assembles no chunk: larger is cheaper).
-_DURATION_PIECE_SAMPLES = 2_000_000 - 2_000_000 % BLOCK_SAMPLES
 
 
 def plan_chunks(program: object, profile: MachineProfile, *, chunk_samples: int = DEFAULT_CHUNK_SAMPLES,
@@ -433,8 +430,8 @@ def planned_duration_s(program: object, profile: MachineProfile) -> float:
 
 def planned_move_times_s(program: object, profile: MachineProfile) -> tuple[NDArray[np.float64], float]:
     """Each move's planned time (M,) and the cycle time, s, counted from :func:`plan_chunks`' pieces as they are
-    planned (no chunk is assembled, no sample held)."""
-    moves, pieces = _profile_pieces(program, profile, _DURATION_PIECE_SAMPLES, None)
+    planned (no chunk is assembled, no sample held; 2 M-sample pieces: it only counts)."""
+    moves, pieces = _profile_pieces(program, profile, 1953 * BLOCK_SAMPLES, None)
     counts, n = np.zeros(len(moves), np.int64), 0
     for pos, mv in pieces:
         n += pos.shape[0]
