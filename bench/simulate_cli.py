@@ -82,12 +82,12 @@ def _ilcnc() -> list[str]:
 last_cpu_s = 0.0
 
 
-def _run(argv: list[str], env: dict[str, str]) -> tuple[float, subprocess.CompletedProcess[str]]:
+def _run(argv: list[str], env: dict[str, str], cwd: Path = ROOT) -> tuple[float, subprocess.CompletedProcess[str]]:
     """Wall time and result of one process (its CPU time in :data:`last_cpu_s`)."""
     global last_cpu_s
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    res = subprocess.run(argv, env=env, capture_output=True, text=True, cwd=ROOT)
+    res = subprocess.run(argv, env=env, capture_output=True, text=True, cwd=cwd)
     dt = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     last_cpu_s = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     env = dict(os.environ)
     env.pop("PYTHONDONTWRITEBYTECODE", None)
-    cmd = [*_ilcnc(), "simulate", str(args.program), "--profile", str(args.profile)]
+    cmd = [*_ilcnc(), "simulate", str(args.program.resolve()), "--profile", str(args.profile.resolve())]
     print(f"load average before: {_load()} (1 / 5 / 15 min; {os.cpu_count()} cores)")
     _dt, res = _run([*cmd, "--json"], env)  # fills the numba and .pyc caches; gives the cycle time
     figures = json.loads(res.stdout)
@@ -122,22 +122,26 @@ def main(argv: list[str] | None = None) -> int:
           f"contour error max {figures['contour_error_mm']['max'] * 1e3:.2f} um")
     print(f"command  {' '.join(Path(c).name if i == 0 else c for i, c in enumerate(cmd))}")
     rows: list[tuple[str, list[float], list[float]]] = []
-    timed = [("python -c pass", [sys.executable, "-c", "pass"], env),
-             ("ilcnc --version", [*_ilcnc(), "--version"], env)]
+    timed = [("python -c pass", [sys.executable, "-c", "pass"], env, ROOT),
+             ("ilcnc --version", [*_ilcnc(), "--version"], env, ROOT)]
     if args.before is not None:
-        old_env = dict(env, PYTHONPATH=str(args.before.resolve()))
+        # run in that checkout (python -m puts the working folder first on sys.path) with it on PYTHONPATH
+        old_root = args.before.resolve()
+        old_env = dict(env, PYTHONPATH=str(old_root))
         old_cmd = [sys.executable, "-m", "ilcnc", *cmd[len(_ilcnc()):]]
-        _dt, res = _run([*old_cmd, "--json"], old_env)
-        same = {k: v for k, v in json.loads(res.stdout).items() if k != "program"} == {
-            k: v for k, v in figures.items() if k != "program"}
-        print(f"before   {args.before}: the same figures: {same}")
-        timed.append(("before: simulate", old_cmd, old_env))
-    timed.append(("ilcnc simulate", cmd, env))
-    for name, argv_, run_env in timed:
-        _run(argv_, run_env)  # warm-up
+        where = _run([sys.executable, "-c", "import ilcnc; print(ilcnc.__file__)"], old_env, old_root)[1].stdout.strip()
+        if not where.startswith(str(old_root)):
+            raise SystemExit(f"--before {old_root}: python imports ilcnc from {where}")
+        _dt, res = _run([*old_cmd, "--json"], old_env, old_root)
+        same = json.loads(res.stdout) == figures
+        print(f"before   {where}: the same figures: {same}")
+        timed.append(("before: simulate", old_cmd, old_env, old_root))
+    timed.append(("ilcnc simulate", cmd, env, ROOT))
+    for name, argv_, run_env, cwd in timed:
+        _run(argv_, run_env, cwd)  # warm-up
         walls, cpus = [], []
         for _ in range(max(args.runs, 1)):
-            walls.append(_run(argv_, run_env)[0])
+            walls.append(_run(argv_, run_env, cwd)[0])
             cpus.append(last_cpu_s)
         rows.append((name, walls, cpus))
     print(f"\nwarm: wall time of the whole process, s (best / median / max of {max(args.runs, 1)}), its CPU time"
