@@ -42,6 +42,7 @@ THREAD_ENV_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
 _process_limit: int | None = None
 _local = threading.local()
 _blas_controller: object | None = None
+_blas_lock = threading.RLock()  # one thread at a time changes and restores the BLAS limit
 
 
 def available_cores() -> int:
@@ -98,7 +99,9 @@ def one_blas_thread() -> Iterator[None]:
     For tiny matrices (a drive model's 4x4 exponential): OpenBLAS computes them on one thread anyway, so the
     results are the same, but with its pool of threads it spent 9-16 ms per 4x4 ``scipy.linalg.expm`` on the
     shared 2-core machine against 0.04 ms on one thread (70 ms of a 1.3 s ``ilcnc simulate``, issue 24).
-    The libraries are looked up once per process (12 ms; entering the block later costs 0.1 ms).
+    The libraries are looked up once per process (12 ms; entering the block later costs 0.1 ms). The limit is
+    the process's: threads take turns in the block (it is meant for microseconds of work), so each one
+    restores what it found.
     """
     global _blas_controller
     try:
@@ -106,10 +109,11 @@ def one_blas_thread() -> Iterator[None]:
     except ImportError:  # pragma: no cover - threadpoolctl is a dependency
         yield
         return
-    if _blas_controller is None:
-        _blas_controller = ThreadpoolController()
-    with _blas_controller.limit(limits=1, user_api="blas"):  # type: ignore[attr-defined]
-        yield
+    with _blas_lock:
+        if _blas_controller is None:
+            _blas_controller = ThreadpoolController()
+        with _blas_controller.limit(limits=1, user_api="blas"):  # type: ignore[attr-defined]
+            yield
 
 
 def threads_per_part(workers: int, cores: int | None = None) -> int:

@@ -158,6 +158,40 @@ def test_scipy_linalg_leaves_numpys_extras_unloaded_until_used() -> None:
     assert res.stdout.splitlines() == ["['numpy.f2py', 'numpy.testing']", "False False", "numpy.f2py True True []"]
 
 
+def test_one_blas_thread_inside_the_block_and_the_previous_limit_after_it_from_two_threads() -> None:
+    # the drive models' 4x4 expm runs in it (ilcnc.vcnc.lti): OpenBLAS's pool cost 300x the work there
+    import threading
+    import time
+
+    import scipy.linalg
+    from threadpoolctl import threadpool_info
+
+    from ilcnc._threads import one_blas_thread
+
+    def blas() -> list[int]:
+        return sorted(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
+
+    before = blas()
+    inside: list[list[int]] = []
+    same: list[bool] = []
+
+    def work() -> None:
+        for _ in range(5):
+            with one_blas_thread():
+                inside.append(blas())
+                m = np.array([[0.0, 1.0], [-4.0, -0.4]])
+                same.append(np.array_equal(scipy.linalg.expm(m), scipy.linalg.expm(m)))
+                time.sleep(0.001)
+
+    threads = [threading.Thread(target=work) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert before and all(b == [1] * len(before) for b in inside) and len(inside) == 10 and all(same)
+    assert blas() == before
+
+
 def test_inspect_runs_without_numba() -> None:
     res = _run_python(f"""
         import sys
