@@ -75,20 +75,20 @@ def test_simulate_reports_cutting_first_and_air_apart() -> None:
     assert cut["max"] > 0 and air["max"] > 0 and cut["rms"] > air["rms"]
     # everything as air: no cutting figure left; everything as cutting: the air figures are zero
     everything_air = json.loads(runner.invoke(app, ["simulate", str(JSDC), "--profile", str(SEED004), "--json",
-                                                    "--cutting-below-z", "-5"]).output)
+                                                    "--cutting-below-z", "-5"]).stdout)
     assert everything_air["contour_error_mm"]["max"] == 0.0 and everything_air["air_error_mm"]["max"] >= cut["max"]
     assert everything_air["cutting_rule"]["source"] == "option"
     all_cut = json.loads(runner.invoke(app, ["simulate", str(JSDC), "--profile", str(SEED004), "--json",
-                                             "--cutting-below-z", "5"]).output)
+                                             "--cutting-below-z", "5"]).stdout)
     assert all_cut["air_error_mm"] == {"max": 0.0, "mean": 0.0, "rms": 0.0}
     assert all_cut["contour_error_mm"]["max"] == max(cut["max"], air["max"])
 
 
 def test_check_gates_on_the_cutting_moves() -> None:
     data = json.loads(runner.invoke(app, ["simulate", str(JSDC), "--profile", str(SEED004), "--json",
-                                          "--cutting-below-z", "-5"]).output)
+                                          "--cutting-below-z", "-5"]).stdout)
     worst_all = data["air_error_mm"]["max"]  # every feed move as air: the largest error of any feed move
-    cut = json.loads(runner.invoke(app, ["simulate", str(JSDC), "--profile", str(SEED004), "--json"]).output)
+    cut = json.loads(runner.invoke(app, ["simulate", str(JSDC), "--profile", str(SEED004), "--json"]).stdout)
     limit = cut["contour_error_mm"]["max"] * 1.001
     ok = runner.invoke(app, ["check", str(JSDC), "--profile", str(SEED004), "--max-error", f"{limit}"])
     assert ok.exit_code == 0 and "cutting moves max" in ok.output

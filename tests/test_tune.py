@@ -473,7 +473,7 @@ def test_the_written_schedule_runs_in_simulate(schedule_report: TuneReport, tmp_
                                "--schedule", str(schedule_report.schedule_csv)])
     assert res.exit_code == 0 and res2.exit_code == 0, res2.output
     before = json.loads(res.stdout)["contour_error_mm"]["rms"]
-    after = json.loads(res2.output)["contour_error_mm"]["rms"]
+    after = json.loads(res2.stdout)["contour_error_mm"]["rms"]
     # simulate measures against the programmed G01 path, where the planner's own rounding of the 0.5-mm chords
     # dominates (as in tune's mse_program_*, 135.4 -> 139.8 µm²): measured RMS 9.43 -> 9.61 µm
     assert before == pytest.approx(0.009428, rel=0.01) and after == pytest.approx(0.009607, rel=0.01)
