@@ -107,12 +107,13 @@ def _corrections(prog: object, seed: int) -> np.ndarray:
 def test_the_vectorised_rewrite_writes_what_the_general_path_writes(path: Path,
                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     """The general path (a move at a time, ``format_number``) is the reference: every move through it gives the
-    same text and the same edits as the vectorised moves with it."""
+    same text and the same edits as the vectorised moves (fast moves and runs of simple ones) with it."""
     prog = read_program(path)
     corr = _corrections(prog, 7)
     text, edits = apply_corrections(prog, corr, min_decimals=3)
     assert len(edits) > 0.5 * np.count_nonzero(corr)
     monkeypatch.setattr(rewrite, "_fast_moves", lambda program, changed, desired: np.zeros(len(program.moves), bool))
+    monkeypatch.setattr(rewrite, "_simple_moves", lambda program, fast: np.zeros(len(program.moves), bool))
     ref_text, ref_edits = apply_corrections(read_program(path), corr, min_decimals=3)
     assert text == ref_text
     assert list(edits) == list(ref_edits)
@@ -130,3 +131,61 @@ def test_the_scanner_finds_the_spans_the_regular_expression_finds(path: Path) ->
         one.resolve_spans([i])
     for name in ("word_start", "word_end", "center_start", "center_end", "insert_at"):
         assert np.array_equal(getattr(every.moves, name), getattr(one.moves, name)), name
+
+
+#: Programs whose rewrite inserts words and keeps arc centres: lower-case words without spaces under cutter
+#: compensation with R arcs in G17 and G18 (comp.ngc), an inch program of R arcs (cap.ngc), spaced mm CAM output
+#: with I/J arcs (compass.ngc, Cereal.ngc).
+INSERTING = [SAMPLES / "third_party" / "gcode" / "comp.ngc", SAMPLES / "third_party" / "gcode" / "cap.ngc",
+             SAMPLES / "compass.ngc", SAMPLES / "third_party" / "gcode" / "Cereal.ngc"]
+
+
+def _general_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(rewrite, "_fast_moves", lambda program, changed, desired: np.zeros(len(program.moves), bool))
+    monkeypatch.setattr(rewrite, "_simple_moves", lambda program, fast: np.zeros(len(program.moves), bool))
+
+
+@pytest.mark.parametrize("path", INSERTING, ids=lambda p: p.name)
+def test_runs_of_simple_moves_write_what_the_general_path_writes(path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Moves with a word to insert, arcs after a moved point (their centre kept) and unchanged moves after changed
+    ones go through ``_Runs`` a run at a time: the same text and edits as one move at a time, for the learner's
+    entry point (G01 commands) and levelling's (every move, rapids and arcs too)."""
+    prog = read_program(path)
+    prog.resolve_spans()
+    from ilcnc.learning.learner import axes_free_to_move
+
+    corr = _corrections(prog, 3)
+    corr[:, 2] = np.where(corr[:, 0] != 0.0, 0.003, 0.0)  # Z everywhere: words to insert where a block has none
+    corr[~axes_free_to_move(prog)] = 0.0
+    mv = prog.moves
+    ends = mv.end_mm + np.where(np.arange(len(mv))[:, None] % 3 == 0, [0.0, 0.0, 0.002], 0.0)
+    fast_text, fast_edits = apply_corrections(read_program(path), corr, min_decimals=4)
+    runs_only = pytest.MonkeyPatch()
+    runs_only.setattr(rewrite, "_fast_moves", lambda program, changed, desired: np.zeros(len(program.moves), bool))
+    runs_text, runs_edits = apply_corrections(read_program(path), corr, min_decimals=4)
+    lev_text, lev_edits = rewrite.apply_move_ends(read_program(path), ends, min_decimals=3)
+    runs_only.undo()
+    inserted = [e for e in fast_edits if e.start == e.end]
+    assert inserted  # the case this test is about
+    _general_only(monkeypatch)
+    ref_text, ref_edits = apply_corrections(read_program(path), corr, min_decimals=4)
+    assert fast_text == ref_text and runs_text == ref_text
+    assert list(fast_edits) == list(ref_edits) and list(runs_edits) == list(ref_edits)
+    ref_lev_text, ref_lev_edits = rewrite.apply_move_ends(read_program(path), ends, min_decimals=3)
+    assert lev_text == ref_lev_text
+    assert list(lev_edits) == list(ref_lev_edits)
+
+
+def test_runs_refuse_what_the_general_path_refuses(monkeypatch: pytest.MonkeyPatch) -> None:
+    """An arc whose start a correction moves off its circle: the same refusal (line and message) either way."""
+    path = SAMPLES / "third_party" / "gcode" / "cap.ngc"
+    prog = read_program(path)
+    corr = np.zeros((prog.n_commands, 3))
+    corr[:, 0] = 0.05  # 1.3 mm in this inch program: far beyond the control's limit for an arc start
+    with pytest.raises(rewrite.CorrectionError) as runs:
+        apply_corrections(read_program(path), corr, min_decimals=4)
+    _general_only(monkeypatch)
+    with pytest.raises(rewrite.CorrectionError) as general:
+        apply_corrections(read_program(path), corr, min_decimals=4)
+    assert str(runs.value) == str(general.value)
+    assert "off its circle" in str(runs.value)
