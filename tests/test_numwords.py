@@ -56,6 +56,25 @@ def test_plain_words_read_as_float_and_spelling_read_them(path: Path) -> None:
     for k in np.flatnonzero(~ok).tolist():  # what is left to the word-by-word code is not plain
         w = words[k]
         assert any(c not in "0123456789.+-" for c in w) or w.count(".") > 1 or len(w) > 15, w
+    # the compiled loop (used from 2,000 words on) and the numpy path read the same, bit for bit
+    from ilcnc.program import numwords
+
+    if numwords.HAVE_NUMBA:
+        bad = np.array([b"+-1", b"1.2.3", b"", b"-", b".", b"+.5", b"12345678901234567", b"1234567890123456", b"7.",
+                        b"-0.0", b"1e5", b"+12.500"], dtype=object)
+        extra = b"".join(bad)
+        at = np.cumsum([0] + [len(b) for b in bad])
+        data2 = np.concatenate((data, np.frombuffer(extra, dtype=np.uint8)))
+        s2 = np.concatenate((ws, data.size + at[:-1])).astype(np.int64)
+        e2 = np.concatenate((we, data.size + at[1:])).astype(np.int64)
+        got = np.empty(s2.size, bool), np.empty(s2.size), np.empty(s2.size, np.int64), np.empty(s2.size, np.int64)
+        numwords._parse_compiled(data2, s2, e2, numwords._POW10_F, *got)
+        ref = numwords._parse_plain_arrays(data2, s2, e2)
+        assert np.array_equal(got[0], ref[0])
+        assert got[0][-len(bad):].tolist() == [False, False, False, False, False, True, False, False, True, True, False,
+                                               True]
+        for g, r in zip(got[1:], ref[1:], strict=True):
+            assert np.array_equal(g[ref[0]], r[ref[0]])
 
 
 @pytest.mark.parametrize("klartext", [False, True])

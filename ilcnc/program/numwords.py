@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from ilcnc._jit import HAVE_NUMBA, njit
 from ilcnc.program.model import STYLE_COMMA, STYLE_LITERAL, STYLE_NO_LEADING_ZERO, STYLE_PLUS, STYLE_TRAILING_DOT
 
 __all__ = ["parse_plain", "spell", "splice"]
@@ -69,6 +70,21 @@ def parse_plain(data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[
         ``STYLE_LITERAL``, with ``STYLE_PLUS`` (``+5``), ``STYLE_NO_LEADING_ZERO`` (``.5``, ``-.5``) and
         ``STYLE_TRAILING_DOT`` (``12.``) as written.
     """
+    if HAVE_NUMBA and start.size >= _COMPILED_MIN:
+        n = start.size
+        ok = np.empty(n, dtype=np.bool_)
+        value = np.empty(n)
+        decimals = np.empty(n, dtype=np.int64)
+        style = np.empty(n, dtype=np.int64)
+        _parse_compiled(data, start.astype(np.int64), end.astype(np.int64), _POW10_F, ok, value, decimals, style)
+        return ok, value, decimals, style
+    return _parse_plain_arrays(data, start, end)
+
+
+def _parse_plain_arrays(data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[np.int64]) -> tuple[
+        NDArray[np.bool_], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """:func:`parse_plain` with numpy only: every word padded to the longest (numba's loop is ~5x faster on the
+    228,000 words of a learned stellabee1; this is the path without numba, and the reference in the tests)."""
     n = start.size
     length = end - start
     width = int(min(max(int(length.max()), 1), _MAX_WORD)) if n else 1
@@ -101,6 +117,60 @@ def parse_plain(data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[
     style |= np.where(first == _DOT, STYLE_NO_LEADING_ZERO, 0)
     style |= np.where((n_dot == 1) & (decimals == 0), STYLE_TRAILING_DOT, 0)
     return ok, value, decimals, style
+
+
+def _parse_impl(data, start, end, pow10, ok, value, decimals, style):  # pragma: no cover - compiled
+    """The loop of :func:`parse_plain`: the same tests and the same arithmetic as :func:`_parse_plain_arrays`
+    (the mantissa an exact integer, one division by an exact power of ten)."""
+    for i in range(start.shape[0]):
+        a = start[i]
+        length = end[i] - a
+        good = 1 <= length <= 17
+        neg = False
+        plus = False
+        n_dig = 0
+        n_dot = 0
+        dot_at = length
+        mant = 0
+        first = 0
+        if good:
+            for c in range(length):
+                b = data[a + c]
+                if 48 <= b <= 57:
+                    if n_dig < 15:
+                        mant = mant * 10 + (b - 48)
+                    n_dig += 1
+                elif b == 46:
+                    if n_dot == 0:
+                        dot_at = c
+                    n_dot += 1
+                elif c == 0 and b == 45:
+                    neg = True
+                elif c == 0 and b == 43:
+                    plus = True
+                else:
+                    good = False
+                    break
+            first = data[a + 1] if (neg or plus) and length > 1 else data[a]
+        good = good and n_dot <= 1 and 1 <= n_dig <= 15
+        dec = length - dot_at - 1 if n_dot == 1 else 0
+        ok[i] = good
+        decimals[i] = dec
+        v = mant / pow10[min(dec, 15)] if good else 0.0
+        value[i] = -v if neg else v
+        st = 16  # STYLE_LITERAL
+        if plus:
+            st |= 1  # STYLE_PLUS
+        if first == 46:
+            st |= 4  # STYLE_NO_LEADING_ZERO
+        if n_dot == 1 and dec == 0:
+            st |= 8  # STYLE_TRAILING_DOT
+        style[i] = st
+
+
+_parse_compiled = njit(cache=True, nogil=True)(_parse_impl) if HAVE_NUMBA else None
+#: Fewer words than this are read by the numpy path (no numba import for a small rewrite).
+_COMPILED_MIN = 2_000
 
 
 def spell(value: NDArray[np.float64], decimals: NDArray[np.int64], style: NDArray[np.int64], *,
