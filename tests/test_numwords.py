@@ -106,6 +106,19 @@ def test_spell_writes_what_format_number_writes(klartext: bool) -> None:
         s = got[at[k]:at[k + 1]]
         assert s == want, (v[k], dec[k], sty[k])
         assert written[k] == float(want.replace(",", ".")), want
+    # the compiled loops (from 2,000 numbers on) and the numpy path give the same, byte for byte; also for
+    # decimals outside 0..15, infinities and NaN (not spelled)
+    from ilcnc.program import numwords
+
+    assert v.size >= numwords._COMPILED_MIN and numwords.HAVE_NUMBA
+    v2 = np.concatenate((v, [np.inf, -np.inf, np.nan, 1.0, 2.0**40]))
+    dec2 = np.concatenate((dec, [2, 2, 2, -1, 0]))
+    sty2 = np.concatenate((sty, [STYLE_LITERAL] * 5))
+    ref = numwords._spell_arrays(v2, dec2, sty2, klartext)
+    got2 = spell(v2, dec2, sty2, klartext=klartext)
+    assert not got2[0][-5:].any()
+    assert np.array_equal(got2[0], ref[0]) and np.array_equal(got2[1], ref[1]) and np.array_equal(got2[2], ref[2])
+    assert np.array_equal(got2[3][ref[0]], ref[3][ref[0]])
 
 
 def _corrections(prog: object, seed: int) -> np.ndarray:

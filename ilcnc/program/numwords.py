@@ -204,9 +204,25 @@ def spell(value: NDArray[np.float64], decimals: NDArray[np.int64], style: NDArra
         an exact power of ten, one correctly rounded division).
     """
     v = np.asarray(value, dtype=np.float64)
-    n = v.size
     d = np.asarray(decimals, dtype=np.int64)
     st = np.asarray(style, dtype=np.int64)
+    if HAVE_NUMBA and v.size >= _COMPILED_MIN:
+        n = v.size
+        ok = np.empty(n, dtype=np.bool_)
+        length = np.empty(n, dtype=np.int64)
+        written = np.empty(n)
+        rounded = np.empty(n, dtype=np.int64)
+        _spell_measure_compiled(v, d, st, bool(klartext), _POW10_F, _POW10_I, ok, length, written, rounded)
+        text = np.empty(int(length.sum()), dtype=np.uint8)
+        _spell_write_compiled(v, d, st, bool(klartext), _POW10_I, ok, length, rounded, text)
+        return ok, text, length, written
+    return _spell_arrays(v, d, st, klartext)
+
+
+def _spell_arrays(v: NDArray[np.float64], d: NDArray[np.int64], st: NDArray[np.int64], klartext: bool) -> tuple[
+        NDArray[np.bool_], NDArray[np.uint8], NDArray[np.int64], NDArray[np.float64]]:
+    """:func:`spell` with numpy only (the path without numba and for few numbers; the reference in the tests)."""
+    n = v.size
     ok = np.isfinite(v) & (d >= 0) & (d <= _MAX_DECIMALS)
     dd = np.where(ok, d, 0)
     scaled = np.abs(np.where(ok, v, 0.0)) * _POW10_F[dd]
@@ -246,6 +262,82 @@ def spell(value: NDArray[np.float64], decimals: NDArray[np.int64], style: NDArra
         used[:, 2 + wi + c] = c < dd
     used &= ok[:, None]
     return ok, chars[used], used.sum(axis=1).astype(np.int64), written
+
+
+def _spell_measure_impl(v, d, st, klartext, pow10f, pow10i, ok, length, written, rounded):  # pragma: no cover
+    """First loop of :func:`spell`: which numbers it spells, their rounded integer (value x 10**decimals), their
+    byte count and the value they read back as: the arithmetic of :func:`_spell_arrays`, number by number."""
+    for i in range(v.shape[0]):
+        x = v[i]
+        dd = d[i]
+        good = np.isfinite(x) and 0 <= dd <= 15
+        r = 0
+        if good:
+            scaled = abs(x) * pow10f[dd]
+            good = scaled < 68719476736.0  # 2**36
+            if good:
+                fl = np.floor(scaled)
+                frac = scaled - fl
+                good = abs(frac - 0.5) > 1e-4
+                r = np.int64(fl) + (1 if frac > 0.5 else 0)
+        ok[i] = good
+        if not good:
+            length[i] = 0
+            written[i] = 0.0
+            rounded[i] = 0
+            continue
+        rounded[i] = r
+        negative = x < 0 and r != 0
+        w = r / pow10f[dd]
+        written[i] = -w if negative else w
+        s = st[i]
+        ip = r // pow10i[dd]
+        n_int = 1
+        for k in range(1, 12):
+            if ip >= pow10i[k]:
+                n_int += 1
+        if ip == 0 and dd > 0 and (s & 4) != 0:  # STYLE_NO_LEADING_ZERO
+            n_int = 0
+        has_sign = negative or klartext or (s & 1) != 0  # STYLE_PLUS
+        has_sep = dd > 0 or (s & 8) != 0  # STYLE_TRAILING_DOT
+        length[i] = (1 if has_sign else 0) + n_int + (1 if has_sep else 0) + dd
+
+
+def _spell_write_impl(v, d, st, klartext, pow10i, ok, length, rounded, text):  # pragma: no cover - compiled
+    """Second loop of :func:`spell`: the bytes of the numbers the first one measured, one after the other."""
+    at = 0
+    for i in range(v.shape[0]):
+        if not ok[i]:
+            continue
+        r = rounded[i]
+        dd = d[i]
+        s = st[i]
+        negative = v[i] < 0 and r != 0
+        ip = r // pow10i[dd]
+        fp = r - ip * pow10i[dd]
+        end = at + length[i]
+        # from the right: decimals, separator, integer digits, sign
+        p = end
+        for _c in range(dd):
+            p -= 1
+            text[p] = 48 + fp % 10
+            fp //= 10
+        if dd > 0 or (s & 8) != 0:
+            p -= 1
+            text[p] = 44 if (s & 2) != 0 else 46  # STYLE_COMMA
+        has_sign = negative or klartext or (s & 1) != 0
+        stop = at + (1 if has_sign else 0)
+        while p > stop:
+            p -= 1
+            text[p] = 48 + ip % 10
+            ip //= 10
+        if has_sign:
+            text[at] = 45 if negative else 43
+        at = end
+
+
+_spell_measure_compiled = njit(cache=True, nogil=True)(_spell_measure_impl) if HAVE_NUMBA else None
+_spell_write_compiled = njit(cache=True, nogil=True)(_spell_write_impl) if HAVE_NUMBA else None
 
 
 def splice(data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[np.int64], new: NDArray[np.uint8],

@@ -188,7 +188,7 @@ def apply_corrections(
     desired = mv.end_mm.copy()
     desired[program.command_moves] += corr
     changed = np.zeros(m, dtype=bool)
-    changed[program.command_moves] = np.any(corr != 0.0, axis=1)
+    changed[program.command_moves] = _any3(corr != 0.0)
     return _rewrite_ends(program, desired, changed, min_decimals, extra_edits)
 
 
@@ -228,7 +228,7 @@ def apply_move_ends(program: Program, ends_mm: NDArray[np.float64], *, min_decim
     if not np.all(np.isfinite(ends)):
         i = int(np.flatnonzero(~np.all(np.isfinite(ends), axis=1))[0])
         raise CorrectionError(program.path, int(mv.line[i]), "the wanted end point of this move is not finite")
-    changed = np.any(ends != mv.end_mm, axis=1)
+    changed = _any3(ends != mv.end_mm)
     if not changed.any():
         return program.text, []
     return _rewrite_ends(program, ends.copy(), changed, min_decimals, None)
@@ -401,14 +401,24 @@ def _fast_moves(program: Program, changed: NDArray[np.bool_], desired: NDArray[n
     moved = np.abs(desired - mv.end_mm) > 1e-12
     has_word = (mv.word_start >= 0) & ((mv.word_style & STYLE_LITERAL) != 0)
     ok = changed & (mv.kind == MOVE_LINE) & ((mv.flags & (FLAG_HOME | FLAG_MACHINE)) == 0) & (mv.rotation_deg == 0.0)
-    ok &= ~np.any(mv.word_incremental, axis=1)
-    ok &= np.all(~moved | has_word, axis=1)
+    ok &= ~_any3(mv.word_incremental)
+    ok &= _all3(~moved | has_word)
     # an axis without a word takes the previous end point (modal): only safe when that did not move
     prev_moved = np.zeros_like(moved)
-    prev_moved[1:] = moved[:-1] | np.any(mv.word_incremental[:-1], axis=1)[:, None]
+    prev_moved[1:] = moved[:-1] | _any3(mv.word_incremental[:-1])[:, None]
     prev_moved[0] = True
-    ok &= np.all(has_word | ~prev_moved, axis=1)
+    ok &= _all3(has_word | ~prev_moved)
     return ok
+
+
+def _any3(a: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """``np.any(a, axis=1)`` of an (N, 3) array (numpy's reduction over a short last axis costs ~18x this)."""
+    return a[:, 0] | a[:, 1] | a[:, 2]
+
+
+def _all3(a: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """``np.all(a, axis=1)`` of an (N, 3) array."""
+    return a[:, 0] & a[:, 1] & a[:, 2]
 
 
 def _simple_moves(program: Program, fast: NDArray[np.bool_]) -> NDArray[np.bool_]:
@@ -418,9 +428,9 @@ def _simple_moves(program: Program, fast: NDArray[np.bool_]) -> NDArray[np.bool_
     start's value stays, or the wanted one is inserted), which is what lets a run of them go at once."""
     mv = program.moves
     quiet = FLAG_HOME | FLAG_MACHINE | FLAG_REPEATED | FLAG_POLAR | FLAG_DERIVED | FLAG_POSITION_READ
-    ok = ~fast & ((mv.flags & quiet) == 0) & (mv.rotation_deg == 0.0) & ~np.any(mv.word_incremental, axis=1)
-    ok &= np.all((mv.word_start == -1) | ((mv.word_style & STYLE_LITERAL) != 0), axis=1)
-    ok &= np.all((mv.center_start == -1) | ~mv.center_incremental | ((mv.center_style & STYLE_LITERAL) != 0), axis=1)
+    ok = ~fast & ((mv.flags & quiet) == 0) & (mv.rotation_deg == 0.0) & ~_any3(mv.word_incremental)
+    ok &= _all3((mv.word_start == -1) | ((mv.word_style & STYLE_LITERAL) != 0))
+    ok &= _all3((mv.center_start == -1) | ~mv.center_incremental | ((mv.center_style & STYLE_LITERAL) != 0))
     return ok
 
 
@@ -515,8 +525,8 @@ class _Runs:
         # the general path looks at a changed move, the one after it and the one after a move that did not end as
         # read; it rewrites those changed or not starting where they did
         visited = (rows == lo) | self.changed[rows] | self.changed[before]
-        visited |= np.any(self.realized[before] != mv.end_mm[before], axis=1)
-        processed = visited & (self.changed[rows] | np.any(s != mv.start_mm[rows], axis=1))
+        visited |= _any3(self.realized[before] != mv.end_mm[before])
+        processed = visited & (self.changed[rows] | _any3(s != mv.start_mm[rows]))
         hw = self.has_word[rows]
         insert = ~hw & ~(np.abs(self.desired[rows] - s) <= 1e-12) & processed[:, None]
         e = np.where(hw, self.word_end[rows], np.where(insert, self.insert_end[rows], s))
@@ -537,7 +547,7 @@ class _Runs:
         while rows.size:
             self._info(rows)
             e, _processed, _insert = self._ends(rows, self._starts(rows), lo)
-            moved = np.any(e != realized[rows], axis=1)
+            moved = _any3(e != realized[rows])
             realized[rows] = e
             rows = rows[moved] + 1
             rows = rows[rows < hi]
