@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc._jit import HAVE_NUMBA, njit
+from ilcnc._jit import HAVE_NUMBA, njit, numba_loaded
 from ilcnc.program.model import STYLE_COMMA, STYLE_LITERAL, STYLE_NO_LEADING_ZERO, STYLE_PLUS, STYLE_TRAILING_DOT
 
 __all__ = ["parse_plain", "spell", "splice"]
@@ -70,21 +70,28 @@ def parse_plain(data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[
         ``STYLE_LITERAL``, with ``STYLE_PLUS`` (``+5``), ``STYLE_NO_LEADING_ZERO`` (``.5``, ``-.5``) and
         ``STYLE_TRAILING_DOT`` (``12.``) as written.
     """
-    if HAVE_NUMBA and start.size >= _COMPILED_MIN:
-        n = start.size
-        ok = np.empty(n, dtype=np.bool_)
-        value = np.empty(n)
-        decimals = np.empty(n, dtype=np.int64)
-        style = np.empty(n, dtype=np.int64)
-        _parse_compiled(data, start.astype(np.int64), end.astype(np.int64), _POW10_F, ok, value, decimals, style)
-        return ok, value, decimals, style
+    if start.size >= _COMPILED_MIN and numba_loaded():
+        return _parse_plain_loop(data, start, end)
     return _parse_plain_arrays(data, start, end)
+
+
+def _parse_plain_loop(data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[np.int64]) -> tuple[
+        NDArray[np.bool_], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """:func:`parse_plain` by the compiled loop."""
+    n = start.size
+    ok = np.empty(n, dtype=np.bool_)
+    value = np.empty(n)
+    decimals = np.empty(n, dtype=np.int64)
+    style = np.empty(n, dtype=np.int64)
+    _parse_compiled(data, start.astype(np.int64), end.astype(np.int64), _POW10_F, ok, value, decimals, style)
+    return ok, value, decimals, style
 
 
 def _parse_plain_arrays(data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[np.int64]) -> tuple[
         NDArray[np.bool_], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
-    """:func:`parse_plain` with numpy only: every word padded to the longest (numba's loop is ~5x faster on the
-    228,000 words of a learned stellabee1; this is the path without numba, and the reference in the tests)."""
+    """:func:`parse_plain` with numpy only: every word padded to the longest (the compiled loop is ~10x faster on
+    the 228,000 words of a learned stellabee1; this is the path for small rewrites, without numba, and the reference
+    in the tests)."""
     n = start.size
     length = end - start
     width = int(min(max(int(length.max()), 1), _MAX_WORD)) if n else 1
@@ -169,7 +176,9 @@ def _parse_impl(data, start, end, pow10, ok, value, decimals, style):  # pragma:
 
 
 _parse_compiled = njit(cache=True, nogil=True)(_parse_impl) if HAVE_NUMBA else None
-#: Fewer words than this are read by the numpy path (no numba import for a small rewrite).
+#: The compiled loops read and spell from this many numbers on, and only in a process that has imported numba
+#: already (a learning run, a program read by the scanner): importing it costs more (~0.3 s) than the numpy path
+#: saves on a mid-size program (a few ms).
 _COMPILED_MIN = 2_000
 
 
@@ -206,17 +215,23 @@ def spell(value: NDArray[np.float64], decimals: NDArray[np.int64], style: NDArra
     v = np.asarray(value, dtype=np.float64)
     d = np.asarray(decimals, dtype=np.int64)
     st = np.asarray(style, dtype=np.int64)
-    if HAVE_NUMBA and v.size >= _COMPILED_MIN:
-        n = v.size
-        ok = np.empty(n, dtype=np.bool_)
-        length = np.empty(n, dtype=np.int64)
-        written = np.empty(n)
-        rounded = np.empty(n, dtype=np.int64)
-        _spell_measure_compiled(v, d, st, bool(klartext), _POW10_F, _POW10_I, ok, length, written, rounded)
-        text = np.empty(int(length.sum()), dtype=np.uint8)
-        _spell_write_compiled(v, d, st, bool(klartext), _POW10_I, ok, length, rounded, text)
-        return ok, text, length, written
+    if v.size >= _COMPILED_MIN and numba_loaded():
+        return _spell_loop(v, d, st, klartext)
     return _spell_arrays(v, d, st, klartext)
+
+
+def _spell_loop(v: NDArray[np.float64], d: NDArray[np.int64], st: NDArray[np.int64], klartext: bool) -> tuple[
+        NDArray[np.bool_], NDArray[np.uint8], NDArray[np.int64], NDArray[np.float64]]:
+    """:func:`spell` by the compiled loops: measure every number, then write them."""
+    n = v.size
+    ok = np.empty(n, dtype=np.bool_)
+    length = np.empty(n, dtype=np.int64)
+    written = np.empty(n)
+    rounded = np.empty(n, dtype=np.int64)
+    _spell_measure_compiled(v, d, st, bool(klartext), _POW10_F, _POW10_I, ok, length, written, rounded)
+    text = np.empty(int(length.sum()), dtype=np.uint8)
+    _spell_write_compiled(v, d, st, bool(klartext), _POW10_I, ok, length, rounded, text)
+    return ok, text, length, written
 
 
 def _spell_arrays(v: NDArray[np.float64], d: NDArray[np.int64], st: NDArray[np.int64], klartext: bool) -> tuple[
