@@ -260,7 +260,7 @@ def _rewrite_ends(program: Program, desired: NDArray[np.float64], changed: NDArr
     fast = _fast_moves(program, changed, desired)
     data = np.frombuffer(program.text.encode("latin-1"), dtype=np.uint8)
     spliced = [_rewrite_fast(program, data, np.flatnonzero(fast), desired, klartext, min_decimals, realized)]
-    # the other moves of absolute literal words go a run at a time (_rewrite_runs); the rest one at a time
+    # the other moves of absolute literal words go a run at a time (_Runs); the rest one at a time (_rewrite_move)
     simple = _simple_moves(program, fast) if not klartext else np.zeros(m, dtype=bool)
     runs = _Runs(program, data, desired, changed, fast, simple, realized, min_decimals) if simple.any() else None
     general_at = np.flatnonzero(~(simple | fast))
