@@ -324,6 +324,32 @@ def test_fast_path_equals_general_path_with_path_control_and_inverse_time(monkey
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
 
 
+def test_axis_words_in_any_order_are_plain_blocks(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A rewrite inserts a missing axis word after a block's others (``X1 Z2`` -> ``X1 Z2 Y3``, stellabee1: 1,233
+    such blocks after one learning iteration); the reader reads those on its fast path too, with the numbers the
+    general lexer reads. A repeated axis word, or one after I/J/K/R/F, is left to the lexer (an error there)."""
+    from ilcnc.program import gcode
+
+    text = ("G20 G90\nG0 X0 Y0 Z0.1\nG1 Z-0.1 F20\nX1 Z-0.2 Y0.5\n Y0.25 Z-0.3 X2\ny1x3\nG3 Z-0.3 X2 Y0.25 R1\n"
+            "G1 Y.5X2.5Z-.25\nX3 Y1 X4\nX3 I1 Y1\nZ1 Z2\nM2\n")
+    data = text.encode()
+    starts = np.concatenate(([0], np.flatnonzero(np.frombuffer(data, dtype=np.uint8) == 10) + 1))
+    a, slow_a = gcode._classify(text, data, starts.shape[0], starts, Path("t.ngc"), force="regex")
+    b, slow_b = gcode._classify(text, data, starts.shape[0], starts, Path("t.ngc"), force="scanner")
+    assert slow_a.tolist() == [True, False, False, False, False, False, False, False, True, True, True, True, False]
+    assert np.array_equal(slow_a, slow_b)
+    assert np.array_equal(a, b, equal_nan=True)
+    assert a[3, 1:4].tolist() == [1.0, 0.5, -0.2] and a[5, 1:3].tolist() == [3.0, 1.0]
+    plain = "\n".join(text.splitlines()[:8]) + "\nM2\n"
+    fast = _read(plain)
+    slow = _read_general_only(plain, monkeypatch)
+    assert np.count_nonzero(fast.moves.insert_at == SPAN_LAZY) == 7  # the fast path read all seven moves
+    fast.resolve_spans()
+    for name in ("kind", "line", "command", "start_mm", "end_mm", "center_mm", "feed_mm_min", "word_start", "word_end",
+                 "insert_at"):
+        np.testing.assert_array_equal(getattr(fast.moves, name), getattr(slow.moves, name), err_msg=name)
+
+
 def test_a_block_number_before_the_closing_percent(tmp_path):
     """Issue 21: Mach3 posts end with `N890 %`; it was refused ("'%' must stand alone on its line"). A block
     number alone may precede the closing percent; the motion is LinuxCNC's (rs274, where installed)."""

@@ -1,9 +1,9 @@
 """Plain CAM blocks, the G-code reader's fast path: which lines are plain, their numbers, their word spans.
 
-A plain block is ``[N..] [G0|G1|G2|G3] [X..] [Y..] [Z..] [I..] [J..] [K..] [R..] [F..]`` in this order with
-literal numbers (:data:`FAST_LINE`): most lines of CAM output. :func:`classify_lines` reads all of them in one
-pass (a regular expression, or the compiled scanner of :mod:`ilcnc.program.scan` for long programs) and
-:func:`resolve_fast_spans` finds their words' places in the text when a rewrite needs them.
+A plain block is ``[N..] [G0|G1|G2|G3] [X..] [Y..] [Z..] [I..] [J..] [K..] [R..] [F..]`` in this order (X, Y and
+Z in any order) with literal numbers (:data:`FAST_LINE`): most lines of CAM output. :func:`classify_lines` reads
+all of them in one pass (a regular expression, or the compiled scanner of :mod:`ilcnc.program.scan` for long
+programs) and :func:`resolve_fast_spans` finds their words' places in the text when a rewrite needs them.
 """
 
 from __future__ import annotations
@@ -19,11 +19,14 @@ from ilcnc.program.model import SPAN_LAZY, Program
 
 __all__ = ["FAST_LINE", "SCANNER_MIN_LINES", "classify_lines", "resolve_fast_spans"]
 
-#: The common CAM block: [N..] [G0|G1] [X..] [Y..] [Z..] [F..] in this order, literal numbers.
+#: The common CAM block: [N..] [G0-3] [X..] [Y..] [Z..] [I..] [J..] [K..] [R..] [F..] in this order, literal numbers;
+#: X, Y and Z in any order, each once (a rewrite inserts a missing axis word after the others: ``X1 Z2 Y3``).
+#: ``(?(2)(?!))`` refuses a second X word (group 2 holds the first), likewise Y and Z: such a block is an error
+#: the general lexer reports.
 _NUM = r"([-+]?(?:\d+(?:\.\d*)?|\.\d+))"
 FAST_LINE = re.compile(
     r"[ \t]*(?:[Nn]\d+[ \t]*)?(?:[Gg]0*([0-3])(?![\d.])[ \t]*)?"
-    rf"(?:[Xx][ \t]*{_NUM}[ \t]*)?(?:[Yy][ \t]*{_NUM}[ \t]*)?(?:[Zz][ \t]*{_NUM}[ \t]*)?"
+    rf"(?:(?(2)(?!))[Xx][ \t]*{_NUM}[ \t]*|(?(3)(?!))[Yy][ \t]*{_NUM}[ \t]*|(?(4)(?!))[Zz][ \t]*{_NUM}[ \t]*){{0,3}}"
     rf"(?:[Ii][ \t]*{_NUM}[ \t]*)?(?:[Jj][ \t]*{_NUM}[ \t]*)?(?:[Kk][ \t]*{_NUM}[ \t]*)?"
     rf"(?:[Rr][ \t]*{_NUM}[ \t]*)?"
     r"(?:[Ff][ \t]*(\d+(?:\.\d*)?|\.\d+)[ \t]*)?\r?"

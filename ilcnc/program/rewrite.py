@@ -33,10 +33,12 @@ from numpy.typing import NDArray
 
 from ilcnc.errors import CorrectionError
 from ilcnc.program.model import (
+    FLAG_DERIVED,
     FLAG_HOME,
     FLAG_MACHINE,
     FLAG_POLAR,
     FLAG_POSITION_READ,
+    FLAG_REPEATED,
     MOVE_ARC_CW,
     PLANE_AXES,
     SPAN_LAZY,
@@ -186,7 +188,7 @@ def apply_corrections(
     desired = mv.end_mm.copy()
     desired[program.command_moves] += corr
     changed = np.zeros(m, dtype=bool)
-    changed[program.command_moves] = np.any(corr != 0.0, axis=1)
+    changed[program.command_moves] = _any3(corr != 0.0)
     return _rewrite_ends(program, desired, changed, min_decimals, extra_edits)
 
 
@@ -226,7 +228,7 @@ def apply_move_ends(program: Program, ends_mm: NDArray[np.float64], *, min_decim
     if not np.all(np.isfinite(ends)):
         i = int(np.flatnonzero(~np.all(np.isfinite(ends), axis=1))[0])
         raise CorrectionError(program.path, int(mv.line[i]), "the wanted end point of this move is not finite")
-    changed = np.any(ends != mv.end_mm, axis=1)
+    changed = _any3(ends != mv.end_mm)
     if not changed.any():
         return program.text, []
     return _rewrite_ends(program, ends.copy(), changed, min_decimals, None)
@@ -257,23 +259,40 @@ def _rewrite_ends(program: Program, desired: NDArray[np.float64], changed: NDArr
     program.resolve_spans(np.flatnonzero(changed | np.concatenate(([False], changed[:-1]))))
     fast = _fast_moves(program, changed, desired)
     data = np.frombuffer(program.text.encode("latin-1"), dtype=np.uint8)
-    spliced = _rewrite_fast(program, data, np.flatnonzero(fast), desired, klartext, min_decimals, realized)
+    spliced = [_rewrite_fast(program, data, np.flatnonzero(fast), desired, klartext, min_decimals, realized)]
+    # the other moves of absolute literal words go a run at a time (_Runs); the rest one at a time (_rewrite_move)
+    simple = _simple_moves(program, fast) if not klartext else np.zeros(m, dtype=bool)
+    runs = _Runs(program, data, desired, changed, fast, simple, realized, min_decimals) if simple.any() else None
+    general_at = np.flatnonzero(~(simple | fast))
     slow = idx_changed[~fast[idx_changed]]
     follow = idx_changed + 1
     follow = follow[(follow < m) & ~fast[np.minimum(follow, m - 1)]]
     todo = sorted(set(slow.tolist()) | set(follow.tolist()))
     todo_set = set(todo)
     fast_l = fast.tolist()
+    simple_l = simple.tolist()
     changed_l = changed.tolist()
     idx = 0
     nxt: int | None = None
+    solved_to = 0  # moves below this one are written by a run
     while nxt is not None or idx < len(todo):
         if nxt is not None:  # the move after one that ended elsewhere: next, before the rest of the list
             i, nxt = nxt, None
         else:
             i = todo[idx]
             idx += 1
-        if i >= m or fast_l[i]:  # fast moves are written already; their followers are in the list
+        if i >= m or fast_l[i] or i < solved_to:  # fast moves are written already; their followers are in the list
+            continue
+        if simple_l[i] and runs is not None:
+            # every move from here to the next one of the general path, at once; the moves of the run that are
+            # neither changed nor moved by their start are left as written, as below
+            k = int(np.searchsorted(general_at, i))
+            solved_to = int(general_at[k]) if k < general_at.size else m
+            spliced.append(runs.solve(i, solved_to))
+            if solved_to < m and realized[solved_to - 1].tolist() != mv.end_mm[solved_to - 1].tolist() \
+                    and solved_to not in todo_set:
+                todo_set.add(solved_to)
+                nxt = solved_to
             continue
         start_real = realized[i - 1] if i > 0 else mv.start_mm[0]
         if not changed_l[i] and start_real.tolist() == mv.start_mm[i].tolist():
@@ -345,13 +364,13 @@ def _spliced(edits: list[Edit]) -> _Spliced:
                     np.frombuffer(b"".join(news), dtype=np.uint8), np.array([len(b) for b in news], dtype=np.int64))
 
 
-def _assemble(program: Program, edits: list[Edit], first: _Spliced | None = None,
+def _assemble(program: Program, edits: list[Edit], first: list[_Spliced] | None = None,
               data: NDArray[np.uint8] | None = None) -> tuple[str, Edits]:
     """The text with the edits ``first`` and then ``edits`` made (sorted by position, stably: an insertion at a
     position comes before a replacement that starts there)."""
     if data is None:
         data = np.frombuffer(program.text.encode("latin-1"), dtype=np.uint8)
-    parts = [first] if first is not None else []
+    parts = list(first) if first is not None else []
     parts.append(_spliced(edits))
     start = np.concatenate([p.start for p in parts])
     end = np.concatenate([p.end for p in parts])
@@ -382,14 +401,316 @@ def _fast_moves(program: Program, changed: NDArray[np.bool_], desired: NDArray[n
     moved = np.abs(desired - mv.end_mm) > 1e-12
     has_word = (mv.word_start >= 0) & ((mv.word_style & STYLE_LITERAL) != 0)
     ok = changed & (mv.kind == MOVE_LINE) & ((mv.flags & (FLAG_HOME | FLAG_MACHINE)) == 0) & (mv.rotation_deg == 0.0)
-    ok &= ~np.any(mv.word_incremental, axis=1)
-    ok &= np.all(~moved | has_word, axis=1)
+    ok &= ~_any3(mv.word_incremental)
+    ok &= _all3(~moved | has_word)
     # an axis without a word takes the previous end point (modal): only safe when that did not move
     prev_moved = np.zeros_like(moved)
-    prev_moved[1:] = moved[:-1] | np.any(mv.word_incremental[:-1], axis=1)[:, None]
+    prev_moved[1:] = moved[:-1] | _any3(mv.word_incremental[:-1])[:, None]
     prev_moved[0] = True
-    ok &= np.all(has_word | ~prev_moved, axis=1)
+    ok &= _all3(has_word | ~prev_moved)
     return ok
+
+
+def _any3(a: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """``np.any(a, axis=1)`` of an (N, 3) array (numpy's reduction over a short last axis costs ~18x this)."""
+    return a[:, 0] | a[:, 1] | a[:, 2]
+
+
+def _all3(a: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """``np.all(a, axis=1)`` of an (N, 3) array."""
+    return a[:, 0] & a[:, 1] & a[:, 2]
+
+
+def _simple_moves(program: Program, fast: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """G-code moves (other than the fast ones) that :class:`_Runs` writes: every end point word an absolute
+    literal number, every incremental centre word a literal one, no turned frame, no G28/G53, written once.
+    For them the general path's arithmetic depends on the start only through the axes without a word (the
+    start's value stays, or the wanted one is inserted), which is what lets a run of them go at once."""
+    mv = program.moves
+    quiet = FLAG_HOME | FLAG_MACHINE | FLAG_REPEATED | FLAG_POLAR | FLAG_DERIVED | FLAG_POSITION_READ
+    ok = ~fast & ((mv.flags & quiet) == 0) & (mv.rotation_deg == 0.0) & ~_any3(mv.word_incremental)
+    ok &= _all3((mv.word_start == -1) | ((mv.word_style & STYLE_LITERAL) != 0))
+    ok &= _all3((mv.center_start == -1) | ~mv.center_incremental | ((mv.center_style & STYLE_LITERAL) != 0))
+    return ok
+
+
+class _Runs:
+    """Writes runs of :func:`_simple_moves` (and fast moves, written already) as :func:`_rewrite_move` would, one
+    move after the other, but with array arithmetic.
+
+    What the general path does with such a move ``i`` starting at ``s`` (the previous move's real end): nothing
+    when it is not changed and ``s`` is its start as read; else each axis with a word gets the wanted number (or
+    keeps its own when that is the same to 1e-9 mm), each axis without one keeps ``s`` when that is within
+    1e-12 mm of the wanted end and gets a word inserted otherwise; an end within 1e-9 mm of the one read is
+    that one. Words and inserted numbers do not depend on ``s``, so they are worked out once per move
+    (:meth:`_info`); the ends are then found for all moves of a run at once, again for the moves after those
+    whose end changed, until none does (a chain is rarely longer than two moves), and the edits made from the
+    final starts.
+    """
+
+    def __init__(self, program: Program, data: NDArray[np.uint8], desired: NDArray[np.float64],
+                 changed: NDArray[np.bool_], fast: NDArray[np.bool_], simple: NDArray[np.bool_],
+                 realized: NDArray[np.float64], min_decimals: int) -> None:
+        self.program, self.data, self.desired, self.changed = program, data, desired, changed
+        self.fast, self.simple, self.realized, self.min_decimals = fast, simple, realized, min_decimals
+        m = len(program.moves)
+        self.done = np.zeros(m, dtype=bool)
+        self.has_word = np.zeros((m, 3), dtype=bool)
+        self.word_end = np.zeros((m, 3))  # the end on an axis with a word (before the 1e-9 snap)
+        self.word_edit = np.zeros((m, 3), dtype=bool)  # that word is rewritten
+        self.insert_end = np.zeros((m, 3))  # the end on an axis without a word, when one is inserted
+        self.value = np.zeros((m, 3))  # the number written (word or insertion), program units
+        self.decimals = np.zeros((m, 3), dtype=np.int64)
+        self.style = np.zeros((m, 3), dtype=np.int64)
+
+    def _starts(self, rows: NDArray[np.int64]) -> NDArray[np.float64]:
+        s = self.realized[np.maximum(rows - 1, 0)]
+        if rows.size and rows[0] == 0:
+            s[0] = self.program.moves.start_mm[0]
+        return s
+
+    def _info(self, rows: NDArray[np.int64]) -> None:
+        """Words, their new numbers and the numbers an insertion would write, of the moves ``rows`` not seen yet."""
+        rows = rows[~self.done[rows]]
+        if rows.size == 0:
+            return
+        self.done[rows] = True
+        program, mv, data = self.program, self.program.moves, self.data
+        program.resolve_spans(rows)
+        ws, we = mv.word_start[rows], mv.word_end[rows]
+        present = ws >= 0
+        r_w, a_w = np.nonzero(present)
+        orig, dec, style = _read_words(program.text, data, ws[r_w, a_w], we[r_w, a_w])
+        n = rows.size
+        block_dec = np.zeros(n, dtype=np.int64)
+        np.maximum.at(block_dec, r_w, dec)
+        block_style = np.zeros(n, dtype=np.int64)
+        np.bitwise_or.at(block_style, r_w, style)
+        unit = mv.unit_mm[rows]
+        off = mv.offset_mm[rows]
+        value = (self.desired[rows] - off) / unit[:, None]
+        # axes with a word: the wanted number, or the word's own when that is the same to 1e-9 mm
+        u_w = unit[r_w]
+        v_w = value[r_w, a_w]
+        edit = ~(np.abs(v_w - orig) * u_w < 1e-9)
+        dec_w = np.maximum(dec, self.min_decimals)
+        _new, _length, written = _spell_numbers(v_w[edit], dec_w[edit], style[edit], False)
+        end = mv.end_mm[rows[r_w], a_w].copy()
+        end[edit] = written * u_w[edit] + off[r_w[edit], a_w[edit]]
+        g_w = rows[r_w]
+        self.word_end[g_w, a_w] = end
+        self.word_edit[g_w, a_w] = edit
+        self.decimals[g_w, a_w] = dec_w
+        self.style[g_w, a_w] = style
+        # axes without: the number an insertion writes (the fewest decimals that hold it, the block's spelling)
+        r_n, a_n = np.nonzero(~present)
+        v_n = value[r_n, a_n]
+        dec_n = _exact_decimals_of(v_n, np.maximum(self.min_decimals, block_dec[r_n]))
+        style_n = block_style[r_n] & (STYLE_COMMA | STYLE_NO_LEADING_ZERO)
+        _new, _length, written = _spell_numbers(v_n, dec_n, style_n, False)
+        g_n = rows[r_n]
+        self.insert_end[g_n, a_n] = written * unit[r_n] + off[r_n, a_n]
+        self.decimals[g_n, a_n] = dec_n
+        self.style[g_n, a_n] = style_n
+        self.has_word[rows] = present
+        self.value[rows] = value
+
+    def _ends(self, rows: NDArray[np.int64], s: NDArray[np.float64], lo: int) -> tuple[
+            NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
+        """Real ends of the moves ``rows`` (of the run from ``lo``) starting at ``s``; which of them the general
+        path rewrites, and which of their axes get a word inserted."""
+        mv = self.program.moves
+        o = mv.end_mm[rows]
+        before = rows - 1  # (-1 only for the run's first move, which is visited anyway)
+        # the general path looks at a changed move, the one after it and the one after a move that did not end as
+        # read; it rewrites those changed or not starting where they did
+        visited = (rows == lo) | self.changed[rows] | self.changed[before]
+        visited |= _any3(self.realized[before] != mv.end_mm[before])
+        processed = visited & (self.changed[rows] | _any3(s != mv.start_mm[rows]))
+        hw = self.has_word[rows]
+        insert = ~hw & ~(np.abs(self.desired[rows] - s) <= 1e-12) & processed[:, None]
+        e = np.where(hw, self.word_end[rows], np.where(insert, self.insert_end[rows], s))
+        e = np.where(np.abs(e - o) <= 1e-9, o, e)
+        e = np.where(processed[:, None], e, o)
+        return e, processed, insert
+
+    def solve(self, lo: int, hi: int) -> _Spliced:
+        """Write the moves ``lo`` to ``hi - 1`` (simple or fast; the one before ``lo`` is final) and fill their real
+        ends into ``realized``; return the edits."""
+        realized, simple = self.realized, self.simple
+        # the changed moves and those after a changed one (a fast move's real end is final); then the moves after
+        # those that end elsewhere than before, until none does
+        span = np.arange(lo + 1, hi)
+        look = self.changed[lo + 1:hi] | self.changed[lo:hi - 1]
+        rows = np.concatenate(([lo], span[simple[lo + 1:hi] & look])).astype(np.int64)
+        seen = [rows]
+        while rows.size:
+            self._info(rows)
+            e, _processed, _insert = self._ends(rows, self._starts(rows), lo)
+            moved = _any3(e != realized[rows])
+            realized[rows] = e
+            rows = rows[moved] + 1
+            rows = rows[rows < hi]
+            rows = rows[simple[rows]]
+            seen.append(rows)
+        rows = np.unique(np.concatenate(seen))
+        s = self._starts(rows)
+        _e, processed, insert = self._ends(rows, s, lo)
+        rows, s, insert = rows[processed], s[processed], insert[processed]
+        return self._edits(rows, s, insert)
+
+    def _edits(self, rows: NDArray[np.int64], s: NDArray[np.float64], insert: NDArray[np.bool_]) -> _Spliced:
+        """The edits of the moves ``rows`` (the general path looks at them) starting at ``s``: their rewritten
+        words, inserted words and kept arc centres."""
+        program, mv, text = self.program, self.program.moves, self.program.text
+        # the first refusal, in the general path's order: a word with no place to go, then an arc's start
+        ins_rows = np.any(insert, axis=1)
+        nowhere = ins_rows & (mv.insert_at[rows] < 0)
+        arcs = np.flatnonzero(mv.kind[rows] >= MOVE_ARC_CW)
+        off_circle, r_ref, r_new = self._off_circle(rows[arcs], s[arcs])
+        bad = np.concatenate((np.flatnonzero(nowhere), arcs[off_circle]))
+        if bad.size:
+            k = int(bad.min())
+            line = int(mv.line[rows[k]])
+            if nowhere[k]:
+                a = int(np.flatnonzero(insert[k])[0])
+                raise CorrectionError(program.path, line, f"no place to insert a {_LETTERS[a]} word in this block")
+            j = int(np.flatnonzero(arcs == k)[0])
+            r0, r1 = float(r_ref[j]), float(r_new[j])
+            raise CorrectionError(program.path, line, f"the correction before this arc moves its start"
+                                  f" {abs(r1 - r0):.4f} mm off its circle (radius {r1:.4f} mm): a control refuses"
+                                  " such an arc; correct the point along the circle")
+        starts: list[NDArray[np.int64]] = []
+        ends: list[NDArray[np.int64]] = []
+        lines: list[NDArray[np.int64]] = []
+        news: list[NDArray[np.uint8]] = []
+        lengths: list[NDArray[np.int64]] = []
+        # rewritten words
+        r_w, a_w = np.nonzero(self.word_edit[rows])
+        g = rows[r_w]
+        new, length, _written = _spell_numbers(self.value[g, a_w], self.decimals[g, a_w], self.style[g, a_w], False)
+        starts.append(mv.word_start[g, a_w])
+        ends.append(mv.word_end[g, a_w])
+        lines.append(mv.line[g].astype(np.int64))
+        news.append(new)
+        lengths.append(length)
+        # kept arc centres: incremental centre words of arcs whose start moved on their axis
+        ga = rows[arcs]
+        cs = mv.center_start[ga]
+        moved = (cs >= 0) & mv.center_incremental[ga] & (s[arcs] != mv.start_mm[ga])
+        r_c, a_c = np.nonzero(moved)
+        g = ga[r_c]
+        c_start, c_end = cs[r_c, a_c], mv.center_end[g, a_c]
+        _o, dec, style = _read_words(text, self.data, c_start, c_end)
+        rel = mv.center_mm[g, a_c] - s[arcs][r_c, a_c]
+        new, length, _written = _spell_numbers(rel / mv.unit_mm[g], np.maximum(dec, self.min_decimals), style, False)
+        starts.append(c_start)
+        ends.append(c_end)
+        lines.append(mv.line[g].astype(np.int64))
+        news.append(new)
+        lengths.append(length)
+        # inserted words: one edit per block, its words in axis order, each spelled as the block's letters go
+        r_i, a_i = np.nonzero(insert)
+        g = rows[r_i]
+        new, length, _written = _spell_numbers(self.value[g, a_i], self.decimals[g, a_i], self.style[g, a_i], False)
+        numbers = new.tobytes().decode("latin-1")
+        at = (np.cumsum(length) - length).tolist()
+        pos = mv.insert_at[g]
+        lower, sep = _line_styles(text, self.data, program.line_offsets(), pos)
+        words = [sp + (_LETTERS[a].lower() if lo else _LETTERS[a]) + numbers[b:b + n]
+                 for sp, lo, a, b, n in zip(sep, lower, a_i.tolist(), at, length.tolist(), strict=True)]
+        block = np.flatnonzero(np.concatenate(([True], r_i[1:] != r_i[:-1]))) if r_i.size else r_i
+        cut = [*block[1:].tolist(), len(words)] if r_i.size else []
+        joined = ["".join(words[b:c]).encode("latin-1") for b, c in zip(block.tolist(), cut, strict=True)]
+        starts.append(pos[block])
+        ends.append(pos[block])
+        lines.append(mv.line[g[block]].astype(np.int64))
+        news.append(np.frombuffer(b"".join(joined), dtype=np.uint8))
+        lengths.append(np.array([len(b) for b in joined], dtype=np.int64))
+        return _Spliced(np.concatenate(starts).astype(np.int64), np.concatenate(ends).astype(np.int64),
+                        np.concatenate(lines), np.concatenate(news), np.concatenate(lengths))
+
+    def _off_circle(self, arcs: NDArray[np.int64], s: NDArray[np.float64]) -> tuple[
+            NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
+        """:func:`_rewrite_center`'s refusal for the arcs ``arcs`` starting at ``s``: (refused, the radius at the
+        start, the radius at the end), by ``math.hypot`` as there (numpy's may differ in the last bit)."""
+        mv = self.program.moves
+        plane = mv.plane[arcs].astype(np.int64)
+        ij = np.array([PLANE_AXES.get(int(p), PLANE_AXES[17])[:2] for p in range(max(int(plane.max(initial=0)), 19) + 1)])
+        i0, i1 = ij[plane, 0], ij[plane, 1]
+        k = np.arange(arcs.size)
+        c = mv.center_mm[arcs]
+        e = mv.end_mm[arcs]
+        hyp = math.hypot
+        r0 = np.array([hyp(x, y) for x, y in zip((s[k, i0] - c[k, i0]).tolist(), (s[k, i1] - c[k, i1]).tolist(),
+                                                  strict=True)])
+        r1 = np.array([hyp(x, y) for x, y in zip((e[k, i0] - c[k, i0]).tolist(), (e[k, i1] - c[k, i1]).tolist(),
+                                                  strict=True)])
+        return np.asarray(arc_off_circle(r1, r0), dtype=bool).reshape(-1), r0, r1
+
+
+def _read_words(text: str, data: NDArray[np.uint8], start: NDArray[np.int64], end: NDArray[np.int64]) -> tuple[
+        NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """Value, decimals and ``STYLE_*`` bits of the literal number words ``text[start:end]`` (``_parse`` and
+    ``spelling``; the plainly written ones at once)."""
+    plain, value, dec, style = parse_plain(data, start, end)
+    for k in np.flatnonzero(~plain).tolist():
+        word = text[int(start[k]):int(end[k])]
+        value[k] = _parse(word)
+        dec[k], style[k] = spelling(word)
+    return value, dec, style
+
+
+def _exact_decimals_of(value: NDArray[np.float64], least: NDArray[np.int64]) -> NDArray[np.int64]:
+    """:func:`_exact_decimals` of every value. ``round(v, d)`` is the number ``format(v, f".{d}f")`` reads back
+    as (both round the exact binary value to ``d`` places), which :func:`_spell_numbers` gives."""
+    out = np.maximum(least, 8)  # what is left when no count of decimals up to 8 holds the value
+    todo = least <= 8
+    for d in range(int(least.min(initial=9)), 9):
+        k = np.flatnonzero(todo & (least <= d))
+        if k.size == 0:
+            continue
+        if d < 0:  # round to tens, hundreds ...: not what format_number writes
+            written = np.array([round(x, d) for x in value[k].tolist()], dtype=np.float64)
+        else:
+            dd = np.full(k.size, d, dtype=np.int64)
+            _new, _length, written = _spell_numbers(value[k], dd, np.zeros(k.size, dtype=np.int64), False)
+        hit = np.abs(written - value[k]) <= 1e-9
+        out[k[hit]] = d
+        todo[k[hit]] = False
+    return out
+
+
+def _line_styles(text: str, data: NDArray[np.uint8], offsets: NDArray[np.int64], pos: NDArray[np.int64]) -> tuple[
+        list[bool], list[str]]:
+    """:func:`_line_style` of the text before each place ``pos`` on its line. Lines of ASCII at once: letters are
+    A-Z and a-z and ``str.strip`` takes bytes 9-13, 28-32 there; the others one by one."""
+    n = pos.size
+    line0 = offsets[np.searchsorted(offsets, pos, side="right") - 1]
+    length = np.maximum(pos - line0, 0)
+    index = np.arange(int(length.sum()), dtype=np.int64)
+    seg = np.repeat(np.arange(n), length)
+    index += np.repeat(line0 - (np.cumsum(length) - length), length)
+    ch = data[index]
+    upper = ch & 0xDF
+    alpha = (upper >= 65) & (upper <= 90) & (ch < 128)
+    lower_ch = (ch >= 97) & (ch <= 122)
+    n_alpha = np.bincount(seg, alpha, minlength=n)
+    n_lower = np.bincount(seg, lower_ch, minlength=n)
+    other = np.bincount(seg, ch >= 128, minlength=n) > 0
+    space = ((ch >= 9) & (ch <= 13)) | ((ch >= 28) & (ch <= 32))
+    # a space or tab with a non-blank character before and after it on the segment
+    solid = np.cumsum(~space)
+    base = np.concatenate(([0], solid))[np.cumsum(length) - length]
+    before = solid - base[seg]  # solid characters up to here (a blank one adds none)
+    total = np.bincount(seg, ~space, minlength=n)
+    inner = ((ch == 32) | (ch == 9)) & (before > 0) & (before < total[seg])
+    sep_at = np.bincount(seg, inner, minlength=n) > 0
+    lower = ((n_alpha > 0) & (n_lower > n_alpha / 2)).tolist()
+    sep = np.where(sep_at, " ", "").tolist()
+    for k in np.flatnonzero(other).tolist():
+        lower[k], sep[k] = _line_style(text, int(line0[k]), int(pos[k]))
+    return lower, sep
 
 
 def _rewrite_fast(
@@ -423,25 +744,33 @@ def _rewrite_fast(
         dec[k], style[k] = spelling(word)
     w = np.flatnonzero(~(np.abs(v - orig) * u < 1e-9))  # a number written back as it is stays
     dec_w = np.maximum(np.maximum(dec[w], min_decimals), 0)
-    spelled, new, length, written = spell(v[w], dec_w, style[w], klartext=klartext)
+    new, length, written = _spell_numbers(v[w], dec_w, style[w], klartext)
+    out_end = end_all.copy()
+    out_end[rows[w], axes[w]] = written * u[w] + off[rows[w], axes[w]]
+    realized[idx] = out_end
+    return _Spliced(ws[w], we[w], mv.line[moves[w]].astype(np.int64), new, length)
+
+
+def _spell_numbers(value: NDArray[np.float64], decimals: NDArray[np.int64], style: NDArray[np.int64],
+                   klartext: bool) -> tuple[NDArray[np.uint8], NDArray[np.int64], NDArray[np.float64]]:
+    """``format_number`` of every value, one after the other: (bytes, length of each, the value each reads back
+    as). :func:`ilcnc.program.numwords.spell` spells them; the few outside its exact range go one by one."""
+    spelled, new, length, written = spell(value, decimals, style, klartext=klartext)
     others = np.flatnonzero(~spelled)
     if others.size:
         extra = []
         for k in others.tolist():
-            num = format_number(float(v[w[k]]), int(dec_w[k]), int(style[w[k]]), klartext=klartext)
+            num = format_number(float(value[k]), int(decimals[k]), int(style[k]), klartext=klartext)
             extra.append(num.encode("latin-1"))
             length[k] = len(extra[-1])
             written[k] = _parse(num)
-        # the replacements of the others after all spelled ones, in the order of the edits
+        # the others after all spelled ones, then back in the order of the values
         order = np.concatenate((np.flatnonzero(spelled), others))
         new = np.concatenate((new, np.frombuffer(b"".join(extra), dtype=np.uint8)))
         flat = np.empty(length.size, dtype=np.int64)
         flat[order] = np.cumsum(length[order]) - length[order]
         new = _reorder(new, flat, length)
-    out_end = end_all.copy()
-    out_end[rows[w], axes[w]] = written * u[w] + off[rows[w], axes[w]]
-    realized[idx] = out_end
-    return _Spliced(ws[w], we[w], mv.line[moves[w]].astype(np.int64), new, length)
+    return new, length, written
 
 
 def _reorder(new: NDArray[np.uint8], at: NDArray[np.int64], length: NDArray[np.int64]) -> NDArray[np.uint8]:

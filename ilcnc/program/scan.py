@@ -1,12 +1,13 @@
 """Compiled scanner for plain CAM blocks (large programs).
 
 The G-code reader classifies every line as a *plain block*
-``[N..] [G0-3] [X] [Y] [Z] [I] [J] [K] [R] [F]`` (in this order, literal
-numbers) or *other*. For small files one regular expression does it; for
-large ones this numba loop over the bytes does the same in one pass and parses
-the numbers on the way (measured on the 169,220-line sample: ~0.05 s against
-~0.55 s for the regular expression plus numpy's string parsing, which is
-why the project carries its own scanner here).
+``[N..] [G0-3] [X] [Y] [Z] [I] [J] [K] [R] [F]`` (in this order but for X, Y
+and Z, which may come in any order, each once; literal numbers) or *other*.
+For small files one regular expression does it; for large ones this numba
+loop over the bytes does the same in one pass and parses the numbers on the
+way (measured on the 169,220-line sample: ~0.05 s against ~0.55 s for the
+regular expression plus numpy's string parsing, which is why the project
+carries its own scanner here).
 
 It accepts exactly what ``gcode_plain.FAST_LINE`` accepts, and is checked against
 it line by line on every sample (``tests/test_gcode.py``). A number is parsed
@@ -28,7 +29,7 @@ AVAILABLE = HAVE_NUMBA
 
 _POW10 = np.array([10.0**i for i in range(23)])
 
-# expected letters in order after the optional G word: X Y Z I J K R F (upper, lower)
+# expected letters in order after the optional G word: X Y Z (any order) I J K R F (upper, lower)
 _ORDER_UPPER = np.array([ord(c) for c in "XYZIJKRF"], dtype=np.uint8)
 
 
@@ -84,22 +85,32 @@ def _scan_impl(buf, starts, ends, pow10, order, out, slow, spans, want_spans):  
             while p < e and (buf[p] == 32 or buf[p] == 9):
                 p += 1
         k = 0
+        axes_seen = 0
         while ok and p < e:
             ch = buf[p]
             if ch >= 97:
                 ch -= 32
-            while k < 8 and order[k] != ch:
-                k += 1
-            if k == 8:
-                ok = False
-                break
+            if k <= 3 and 88 <= ch <= 90:  # X Y Z in any order, each once, before the others
+                col = ch - 88
+                if axes_seen & (1 << col):
+                    ok = False
+                    break
+                axes_seen |= 1 << col
+                k = max(k, col)
+            else:
+                while k < 8 and order[k] != ch:
+                    k += 1
+                if k == 8:
+                    ok = False
+                    break
+                col = k
             p += 1
             while p < e and (buf[p] == 32 or buf[p] == 9):
                 p += 1
             num_at = p
             neg = False
             if p < e and (buf[p] == 43 or buf[p] == 45):
-                if k == 7:  # F takes no sign
+                if col == 7:  # F takes no sign
                     ok = False
                     break
                 neg = buf[p] == 45
@@ -131,11 +142,11 @@ def _scan_impl(buf, starts, ends, pow10, order, out, slow, spans, want_spans):  
             if v > 1e12:
                 ok = False
                 break
-            out[li, k + 1] = -v if neg else v
+            out[li, col + 1] = -v if neg else v
             if want_spans:
-                spans[li, k + 1, 0] = num_at
-                spans[li, k + 1, 1] = p
-            k += 1
+                spans[li, col + 1, 0] = num_at
+                spans[li, col + 1, 1] = p
+            k = max(k, col + 1)
             while p < e and (buf[p] == 32 or buf[p] == 9):
                 p += 1
         if not ok:

@@ -88,6 +88,18 @@ def run_selftest(progress: Callable[[str], None] | None = None) -> SelftestResul
         long_path.write_text("\n".join([*lines, "M2", ""]), encoding="ascii")
         star = read_program(star_path, default_units=profile.machine.units)
         step("read a long program", lambda: plural(len(read_program(long_path).moves), "move"))
+
+        def rewrite() -> str:  # a rewrite of a long program reads and spells its numbers in compiled loops
+            import numpy as np
+
+            from ilcnc.program.rewrite import apply_corrections
+
+            long = read_program(long_path)
+            corr = np.zeros((long.n_commands, 3))
+            corr[:, 0] = 0.001
+            return plural(len(apply_corrections(long, corr, min_decimals=3)[1]), "number") + " rewritten"
+
+        step("rewrite a long program", rewrite)
         step("simulate (chunk by chunk)", lambda: "max " + um(simulate_figures(star, profile).stats.max_mm))
         step("simulate (every sample)", lambda: "max " + um(simulate_program(star, profile).stats.max_mm))
         def learn() -> str:
