@@ -1,6 +1,6 @@
-"""Reproduce the figures of docs/papers.md (seeds 000-003) in one run; ``--check``: exit 1 when one is off.
+"""Reproduce the figures of docs/papers.md (seeds 000-004) in one run; ``--check``: exit 1 when one is off.
 
-Usage (from the repository root, ~1.5 min on the 2-core development machine)::
+Usage (from the repository root, ~2.5 min on the 2-core development machine)::
 
     python bench/papers.py              # print every figure, the paper's next to it, and the command behind it
     python bench/papers.py --check      # the same; exit 1 when a figure differs from docs/papers.md's
@@ -11,7 +11,9 @@ programs and profiles, guarded as a user runs it). The rest are the variants doc
 paper's three updates without the guard, other estimates and gains, the CCC with θ from its reference): they
 run ``ilcnc.learning.learner.learn_virtual`` in-process on the same shipped program and profile with the one
 change each line names. Seed 001's figures come from ``ilcnc tune PROG --method schedule --json`` on the shipped
-stand-in path and profile. Seed 004 (issue 22 item 6) is in tests/test_machine_errors.py for now.
+stand-in path and profile. Seed 004's max and RMS per iteration come from ``ilcnc learn ... --json``; its zone
+form errors (the mean wall deviation per immersion zone, which the CLI does not print) from the same learning
+run in-process (``learn_virtual`` with ``keep_runs``), measured as tests/test_machine_errors.py measures them.
 
 Every figure is compared with :data:`EXPECTED` (the figures docs/papers.md prints) within :data:`TOL_REL`
 (relative) or :data:`TOL_ABS_MM` (1e-9 mm): above the noise of the deterministic simulation (two runs give
@@ -52,6 +54,12 @@ S002_PROG = OWN / "seed002_circle.ngc"
 S002_PROF = CONFIGS / "seed002-lu-volumetric.yaml"
 S001_PROG = ROOT / "tests" / "data" / "tune" / "seed001-standin-xz.ngc"
 S001_PROF = CONFIGS / "seed001-duong-p-ff-friction.yaml"
+S004_PROG = OWN / "seed004_stepped.h"
+S004_PROF = CONFIGS / "seed004-stepped-cut.yaml"
+#: Y ranges (mm) of seed 004's three stock zones (75 / 50 / 25 % immersion), 2 mm clear of the steps
+S004_ZONES_MM = ((2.0, 76.5), (80.5, 155.5), (159.5, 234.0))
+#: the paper's measured zone form errors of the default program (µm)
+S004_PAPER_ZONES_UM = (8.41, 11.96, 17.21)
 
 TOL_REL = 2e-3
 TOL_ABS_MM = 1e-9
@@ -105,6 +113,18 @@ EXPECTED: dict[str, Any] = {
                              0.00016044, 0.00015662, 0.00015518, 0.00015518],
     "002.cli.ek_rms": [0.0024167, 0.0013554, 0.00077383, 0.00045237, 0.00027664, 0.00018063, 0.00013168,
                        0.00015427],
+    # seed 004: the product (CLI, guarded, Gamma 0.5, learning.error surface); mm
+    "004.cli.max": [0.015048, 0.0075975, 0.0038771, 0.0021335, 0.0012613, 0.00077723],
+    "004.cli.mean": [0.014035, 0.0070535, 0.0035612, 0.0017684, 0.00090363, 0.00042327],
+    "004.cli.rms": [0.01422, 0.0071458, 0.0036072, 0.001791, 0.0009152, 0.00042882],
+    "004.cli.kept": [True, True, True, True, True, True],
+    "004.cli.status": "converged",
+    # seed 004: zone form errors (75 / 50 / 25 % immersion) per iteration, the same run in-process; mm
+    "004.zones": [[0.014051, 0.014568, 0.015048], [0.0070973, 0.007296, 0.0075497], [0.0036197, 0.0037095, 0.0037506],
+                  [0.001832, 0.0018169, 0.0018511], [0.00093773, 0.00092032, 0.00095141],
+                  [0.00044136, 0.00042207, 0.00045154]],
+    # the default program's zones within a factor 2 of the paper's measured 8.41 / 11.96 / 17.21 um
+    "004.zones0_within_2x_paper": [True, True, True],
 }
 
 
@@ -294,8 +314,32 @@ def seed002_points() -> dict[str, Any]:
     return {"002.points.norm": norms, "002.points.chord_rms": chords}
 
 
+def _zones_mm(run: Any) -> list[float]:
+    """Mean wall deviation (mm) of the cutting moves in each of seed 004's stock zones."""
+    y = run.actual_mm[:, 1]
+    return [float(np.mean(run.error.dist_mm[run.feed_mask & (y > a) & (y < b)])) for a, b in S004_ZONES_MM]
+
+
+def seed004() -> dict[str, Any]:
+    got: dict[str, Any] = {}
+    j = _learn_cli(S004_PROG, S004_PROF)
+    got["004.cli.max"] = _cli_max(j)
+    got["004.cli.mean"] = _cli_max(j, "mean")
+    got["004.cli.rms"] = _cli_max(j, "rms")
+    got["004.cli.kept"] = [it["kept"] for it in j["iterations"]]
+    got["004.cli.status"] = j["status"]
+    print(f"[004] ilcnc learn {S004_PROG.relative_to(ROOT)} --profile {S004_PROF.relative_to(ROOT)} --out stepped-c.h")
+    r = learn_virtual(read_program(S004_PROG), load_profile(S004_PROF), keep_runs=True)
+    got["004.zones"] = [_zones_mm(rec.run) for rec in r.iterations]
+    got["004.zones0_within_2x_paper"] = [p / 2 <= z * 1e3 <= 2 * p
+                                         for z, p in zip(got["004.zones"][0], S004_PAPER_ZONES_UM, strict=True)]
+    print("[004] zones: the same learning run in-process (learn_virtual, keep_runs), mean wall deviation per zone")
+    return got
+
+
 SEEDS: dict[str, Callable[[], dict[str, Any]]] = {
-    "000": seed000, "001": seed001, "002": lambda: {**seed002_points(), **seed002()}, "003": seed003}
+    "000": seed000, "001": seed001, "002": lambda: {**seed002_points(), **seed002()}, "003": seed003,
+    "004": seed004}
 
 
 def _same(want: Any, have: Any) -> bool:

@@ -379,7 +379,8 @@ def feed_per_tooth_mm(feed_mm_min: ArrayLike, spindle_rpm: float, teeth: int) ->
 #: perspective analysis", Chinese Journal of Mechanical Engineering 34 (2021), doi:10.1186/s10033-021-00536-9.
 SEED004_CUTTING_REFERENCE: dict[str, float] = {"ktc_n_mm2": 767.01, "krc_n_mm2": 168.8, "kte_n_mm": 27.7, "kre_n_mm": 26.6}
 
-#: Tool-point modes used by :func:`seed004_tool` (both directions): (frequency Hz, damping ratio, stiffness N/µm).
+#: Tool-point modes used by :func:`seed004_tool` (both directions; ASSUMED, see there): (frequency Hz, damping
+#: ratio, stiffness N/µm).
 SEED004_MODES_REFERENCE: tuple[tuple[float, float, float], ...] = ((900.0, 0.04, 40.0), (2400.0, 0.025, 15.0))
 
 
@@ -391,15 +392,14 @@ def seed004_tool() -> Tool:
     DMG DMU eVo 40, with an impact-tested FRF it does not publish. The modes
     here (:data:`SEED004_MODES_REFERENCE`) are assumptions, not the paper's:
 
-    * a tool mode at 2400 Hz, k = 15 N/µm, ζ = 0.025: a carbide cantilever of
+    * a tool mode at 2400 Hz, k = 15 N/µm, ζ = 0.025. Only the stiffness has an
+      estimate behind it, a scaling, not a measurement: a carbide cantilever of
       fluted diameter ≈ 0.8·D = 9.6 mm (I ≈ 417 mm⁴, E ≈ 600 GPa) and stick-out
-      ≈ 3·D = 36 mm has 3EI/L³ ≈ 16 N/µm; clamped carbide end mills of this size
-      show their dominant tool-point mode at 2-3 kHz with ζ ≈ 0.02-0.03 in the
-      measured tool-point FRFs of Schmitz & Smith, *Machining Dynamics* (ch. 2
-      and 4, receptance coupling examples);
-    * a holder/spindle mode at 900 Hz, k = 40 N/µm, ζ = 0.04 (HSK-63A spindles
-      typically have their first tool-point modes at 0.5-1 kHz, stiffer and
-      better damped than the tool mode).
+      ≈ 3·D = 36 mm has 3EI/L³ ≈ 16 N/µm. Frequency and damping are assumed;
+    * a holder/spindle mode at 900 Hz, k = 40 N/µm, ζ = 0.04: assumed, no source.
+
+    No published tool-point FRF of a comparable tool could be read and cited
+    (docs/papers.md, seed 004, lists what was searched).
 
     Static tool-point stiffness 1/(1/40 + 1/15) ≈ 10.9 N/µm. The tool is
     symmetric (``frf_feed`` = ``frf_normal``). Replace them with the measured FRF
