@@ -80,8 +80,7 @@ def _near(mask: NDArray[np.bool_], width: int) -> NDArray[np.bool_]:
 def hold_cycle_time(u_prev_mm: NDArray[np.float64], u_new_mm: NDArray[np.float64],
                     plan: Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], float]],
                     times0_s: NDArray[np.float64], limit_s: float, command_of_move: NDArray[np.integer],
-                    period_s: float, *, resolution_mm: float = 0.0,
-                    first: tuple[NDArray[np.float64], float] | None = None) -> CycleHold:
+                    period_s: float, *, resolution_mm: float = 0.0) -> CycleHold:
     """Hold back the corrections that slow the planner until the program plans within ``limit_s``.
 
     Parameters
@@ -101,8 +100,6 @@ def hold_cycle_time(u_prev_mm: NDArray[np.float64], u_new_mm: NDArray[np.float64
         Servo period, s.
     resolution_mm : float
         The machine's resolution: a held correction is rounded to it, as the law's are, mm.
-    first : tuple, optional
-        ``plan(u_new_mm)`` when the caller has it already.
 
     Returns
     -------
@@ -112,7 +109,7 @@ def hold_cycle_time(u_prev_mm: NDArray[np.float64], u_new_mm: NDArray[np.float64
     u = np.asarray(u_new_mm, dtype=np.float64).copy()
     k = u.shape[0]
     held = np.zeros(k, dtype=bool)
-    times, cycle = plan(u) if first is None else first
+    times, cycle = plan(u)
     rounds = 0
     # a command's share of its new correction: 1, then halved at every round it is held, 0 after HALVINGS
     share = np.ones(k)

@@ -87,21 +87,28 @@ def _lookup(tab, x):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
+def _span(i, w, s_mm, tol, alone):  # pragma: no cover - compiled
+    """First and last junction of the run around junction ``i`` within ``w`` mm of it along the path; the run
+    stops at a junction without a rounding tolerance (an exact stop or path) and at one taken alone."""
+    n = s_mm.shape[0]
+    lo = i
+    hi = i
+    while lo > 0 and tol[lo - 1] > 0.0 and not alone[lo - 1] and s_mm[i] - s_mm[lo - 1] < w:
+        lo -= 1
+    while hi < n - 1 and tol[hi + 1] > 0.0 and not alone[hi + 1] and s_mm[hi + 1] - s_mm[i] < w:
+        hi += 1
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
 def _fits(i, v, s_mm, du, tol, acc, alone, g_s, rho, step_s, reach_s, dev, acc_v):  # pragma: no cover - compiled
     """Whether junction ``i`` passed at ``v`` keeps its rounding within ``tol[i]`` and its acceleration within
     ``acc``; ``dev`` and ``acc_v`` are scratch (n_axes,)."""
-    n, na = du.shape
+    na = du.shape[1]
     dev[:] = 0.0
     acc_v[:] = 0.0
     scale = 1.0 / (v * step_s)
-    lo = i
-    hi = i
-    if not alone[i]:
-        w = v * reach_s
-        while lo > 0 and tol[lo - 1] > 0.0 and not alone[lo - 1] and s_mm[i] - s_mm[lo - 1] < w:
-            lo -= 1
-        while hi < n - 1 and tol[hi + 1] > 0.0 and not alone[hi + 1] and s_mm[hi + 1] - s_mm[i] < w:
-            hi += 1
+    lo, hi = (i, i) if alone[i] else _span(i, v * reach_s, s_mm, tol, alone)
     for j in range(lo, hi + 1):
         x = abs(s_mm[j] - s_mm[i]) * scale
         gj = _lookup(g_s, x)
@@ -151,17 +158,10 @@ def _junction_speeds(s_mm, du, tol, v_cap, acc, alone, g_s, rho, step_s, reach_s
         vj = lim[j]
         if not math.isfinite(vj) or alone[j]:
             continue
-        w = vj * reach_s
-        k = j - 1
-        while k >= 0 and tol[k] > 0.0 and not alone[k] and s_mm[j] - s_mm[k] < w:
+        lo, hi = _span(j, vj * reach_s, s_mm, tol, alone)
+        for k in range(lo, hi + 1):
             if out[k] > vj and math.isfinite(v_cap[k]):
                 out[k] = vj
-            k -= 1
-        k = j + 1
-        while k < n and tol[k] > 0.0 and not alone[k] and s_mm[k] - s_mm[j] < w:
-            if out[k] > vj and math.isfinite(v_cap[k]):
-                out[k] = vj
-            k += 1
     return out
 
 
