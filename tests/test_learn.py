@@ -24,6 +24,7 @@ from ilcnc.learning.learner import (
     keep_moves_forward,
     learn_virtual,
 )
+from ilcnc.learning.move_limits import repeated_points, tie_repeated_points
 from ilcnc.profile.load import load_profile, profile_from_dict
 from ilcnc.program import read_program
 from ilcnc.program.model import MOVE_RAPID
@@ -337,6 +338,34 @@ def test_cam_program_learned_five_iterations_cuts_rms_by_70_percent(jsdc_run) ->
     changed = _only_coordinates_changed(prog.text, res.best_record.text)
     assert len(changed) > 1000
     assert set(changed) <= set(prog.command_line.tolist())  # only G01 command lines
+
+
+def test_a_repeated_point_moves_with_its_copy(jsdc_run) -> None:
+    """jsdc repeats the last point of each path before the retract (lines 1243-1244, X57.197 Y-28.8996). The
+    path estimate puts the corner's error (3.3 µm in X) on the zero-length copy; before, the move limiter took
+    it back every iteration (10 `move length` clips each). Both copies now take the same correction."""
+    prog, _prof, res = jsdc_run
+    k = {int(line): i for i, line in enumerate(prog.command_line.tolist())}
+    a, b = k[1243], k[1244]
+    u = res.best_record.corrections_mm
+    assert np.array_equal(u[a], u[b]) and abs(u[a][0]) > 0, (u[a], u[b])
+    assert u[a][0] < 0  # outwards: the path runs in -X into the corner
+    assert not [c for c in res.clips if c.line in (1243, 1244)]
+
+
+def test_repeated_points_take_their_largest_update_per_axis() -> None:
+    vec = np.array([[1.0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 1.0, 0], [0, 0, 0]])
+    prev = np.array([-1, 0, 1, 2, -1])  # the last one starts elsewhere: no copy
+    root = repeated_points(vec, prev)
+    assert root.tolist() == [0, 0, 0, 3, 4]
+    du = np.array([[0.1, -0.3, 0], [-0.2, 0.1, 0], [0.05, 0, 0.4], [1, 1, 1], [2, 2, 2]])
+    free = np.ones((5, 3), bool)
+    free[2, 2] = False  # a coordinate that may not move is left alone and takes no part in its copies' choice
+    out = tie_repeated_points(du, root, free)
+    assert out[:2].tolist() == [[-0.2, -0.3, 0.0]] * 2 and out[2].tolist() == [-0.2, -0.3, 0.4]
+    assert np.array_equal(out[3:], du[3:])
+    # timed (G93) zero-length blocks last 60/F: they are moves of their own, not copies
+    assert repeated_points(vec, prev, np.array([False, True, False, False, False])).tolist() == [0, 1, 1, 3, 4]
 
 
 def test_seed004_gamma_half_with_q_filter_converges_monotonically_until_the_guard_stops_it() -> None:

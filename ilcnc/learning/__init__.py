@@ -25,12 +25,13 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'learner': (
         'CLIP_ARC', 'CLIP_BOUND', 'CLIP_MOVE_LENGTH', 'Clip', 'IterationRecord', 'LearnResult', 'Learner',
         'UpdateShaper', 'changed_coordinates', 'clip_corrections', 'correctable_commands', 'frozen_reasons',
-        'keep_moves_forward', 'learn_virtual', 'program_with_corrections'
+        'learn_virtual', 'program_with_corrections'
     ),
     'lifted_check': (
         'DEFAULT_GAMMAS', 'DEFAULT_MAX_COMMANDS', 'DEFAULT_Q_FILTERS_HZ', 'LiftedCandidate', 'LiftedCheck',
         'LiftedModel', 'check_lifted', 'lifted_model'
     ),
+    'move_limits': ('ZERO_LENGTH_MM', 'keep_moves_forward', 'repeated_points', 'start_corrections', 'tie_repeated_points'),
     'refine': ('RefinePlan', 'RefineSite', 'plan_refinement', 'refine_threshold_mm'),
     'step_files': ('identify_file', 'read_step_csv'),
     'time_design': (

@@ -54,6 +54,7 @@ from ilcnc.learning.cycle_hold import CLIP_CYCLE, hold_cycle_time
 from ilcnc.learning.feed import FeedLaw, FeedOutcome, move_errors_mm, move_times_s
 from ilcnc.learning.guard import LearningGuard
 from ilcnc.learning.laws import AXES, LearningLaw, cut_runs, make_law
+from ilcnc.learning.move_limits import keep_moves_forward, repeated_points, start_corrections, tie_repeated_points
 from ilcnc.outcomes import GuardVerdict, LearnStatus, ModelStepEnd
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import (
@@ -73,7 +74,7 @@ from ilcnc.wording import plural
 
 __all__ = [
     "CLIP_ARC", "CLIP_BOUND", "CLIP_MOVE_LENGTH", "Clip", "IterationRecord", "LearnResult", "Learner", "UpdateShaper",
-    "changed_coordinates", "clip_corrections", "correctable_commands", "frozen_reasons", "keep_moves_forward",
+    "changed_coordinates", "clip_corrections", "correctable_commands", "frozen_reasons",
     "learn_virtual", "program_with_corrections"
 ]
 
@@ -220,56 +221,6 @@ def axes_free_to_move(program: Program) -> NDArray[np.bool_]:
     rows = np.flatnonzero(has)
     free[rows] = ~(other[:, None] & needs_word)
     return free
-
-
-def start_corrections(program: Program) -> NDArray[np.int64]:
-    """For each command, the command whose end point is its start (-1: the start is not a command's end)."""
-    mv = program.moves
-    cm = program.command_moves
-    prev = cm - 1
-    out = np.full(cm.size, -1, np.int64)
-    ok = prev >= 0
-    p = prev[ok]
-    joined = np.all(np.abs(mv.end_mm[p] - mv.start_mm[cm[ok]]) <= 1e-9, axis=1)
-    k_prev = mv.command[p].astype(np.int64)
-    out[np.flatnonzero(ok)] = np.where(joined, k_prev, -1)
-    return out
-
-
-def keep_moves_forward(u: NDArray[np.float64], vec_mm: NDArray[np.float64], prev_k: NDArray[np.int64],
-                       *, share: float = 0.5, passes: int = 4,
-                       timed: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
-    """Limit corrections so that no G01 move is turned around or shrunk to nothing.
-
-    The corrected move ``d + U_k - U_prev`` of a move ``d`` must not differ
-    from ``d`` by more than ``share·|d|``; a zero-length move keeps zero
-    length (its end point follows its start point). Corrections bigger than
-    that are scaled down (a few passes settle the coupling between neighbours).
-
-    ``timed`` (K,) marks moves whose duration the program fixes (inverse-time
-    feed, ``G93``: ``60/F`` s whatever their length): they are left as the
-    law wants them. A speed feed (``G94``) makes a shrunk move shorter in time
-    and a turned one run backwards, which the limiter prevents; a timed move
-    keeps its instant, so its length protects nothing.
-    """
-    out = u.copy()
-    length = np.linalg.norm(vec_mm, axis=1)
-    has_prev = prev_k >= 0
-    zero = length <= 1e-6
-    if timed is not None:
-        length = np.where(timed, np.inf, length)
-        zero &= ~timed
-    for _ in range(passes):
-        up = np.where(has_prev[:, None], out[np.maximum(prev_k, 0)], 0.0)
-        out[zero] = up[zero]
-        diff = np.linalg.norm(out - up, axis=1)
-        lim = share * length
-        over = (~zero) & (diff > lim + 1e-12)
-        if not over.any():
-            break
-        f = lim[over] / diff[over]
-        out[over] = up[over] + (out[over] - up[over]) * f[:, None]
-    return out
 
 
 #: Why a correction was changed after the law computed it (:attr:`Clip.cause`).
@@ -471,6 +422,7 @@ class Learner:
     free: NDArray[np.bool_] | None = None
     air_kept: NDArray[np.bool_] | None = None  # commands left as programmed because they are in the air
     timed: NDArray[np.bool_] | None = None  # inverse-time (G93) commands: keep_moves_forward leaves them alone
+    root: NDArray[np.int64] | None = None  # the first copy of each repeated point (move_limits.repeated_points)
 
     @classmethod
     def for_program(cls, program: Program, profile: MachineProfile, law: LearningLaw | None = None) -> Learner:
@@ -490,8 +442,11 @@ class Learner:
         vec = program.moves.end_mm[cm] - program.moves.start_mm[cm]
         program.resolve_spans()
         timed = np.isfinite(program.moves.block_time_s[cm])
-        return cls(program, profile, law, shaper, sec.correction_bound_mm, sel, geo, start_corrections(program), vec,
-                   axes_free_to_move(program), air_kept, timed if timed.any() else None)
+        prev_k = start_corrections(program)
+        timed_k = timed if timed.any() else None
+        root = repeated_points(vec, prev_k, timed_k)
+        return cls(program, profile, law, shaper, sec.correction_bound_mm, sel, geo, prev_k, vec,
+                   axes_free_to_move(program), air_kept, timed_k, root if np.any(root != np.arange(root.size)) else None)
 
     def axis_mask(self) -> NDArray[np.float64]:
         return np.array([1.0 if a in self.profile.axes else 0.0 for a in AXES])
@@ -518,6 +473,8 @@ class Learner:
         du[~self.shaper.correctable] = 0.0
         if self.free is not None:
             du[~self.free] = 0.0
+        if self.root is not None:
+            du = tie_repeated_points(du, self.root, self.free_coordinates())
         u_next = u_hist[-1] + du
         u_next[~self.shaper.correctable] = 0.0
         lines = self.program.command_line
