@@ -120,27 +120,43 @@ def linuxcnc_prepare(
     ini: Annotated[Path | None, typer.Option("--ini", help="The machine's INI: joints, start-up path control,"
                                              " servo period and log units from it.")] = None,
     write_hal: Annotated[Path | None, typer.Option("--write-hal", help="Write the HAL lines to this file.")] = None,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing --write-hal file.")] = False,
+    out: Annotated[Path | None, typer.Option("--out", help="Write the program with the path-control edits made"
+                                             " (each marked '(ilcnc prepare)'): run, log and learn that one.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing --write-hal or --out file.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     debug: DebugOption = False,
 ) -> None:
     """Say what a log run of PROGRAM on a LinuxCNC machine needs, before the run.
 
     The path control per line range and the edits that keep corners within the profile's tolerance (G64 P Q0),
-    the HAL lines that record the axes with halsampler, and the commands that record and learn.
+    the HAL lines that record the axes with halsampler, and the commands that record and learn. With --out, the
+    program with those edits made; nothing else of it changes.
     """
-    from ilcnc.fileio import write_atomic
+    from ilcnc.fileio import same_file, write_atomic
+    from ilcnc.program import read_program
     from ilcnc.shop.linuxcnc_prepare import prepare_run
+    from ilcnc.shop.path_control_edit import ready_program_text
 
+    inputs = (program, profile, *((ini,) if ini else ()))
     try:
-        res = prepare_run(program, profile, ini_path=ini)
+        for opt, dest in (("--write-hal", write_hal), ("--out", out)):
+            if dest is not None and any(same_file(dest, p) for p in inputs if p.exists()):
+                raise UsageError(opt, f"{dest} is an input of this command: choose another file")
+            if dest is not None and dest.exists() and not force:
+                raise UsageError(opt, f"{dest} exists: choose another file or replace it with --force")
+        res = prepare_run(program, profile, ini_path=ini, run_path=out)
         if write_hal is not None:
-            if write_hal.exists() and not force:
-                raise UsageError("--write-hal", f"{write_hal} exists: choose another file or replace it with --force")
-            write_atomic(write_hal, res.hal, protect=(program, profile, *((ini,) if ini else ())))
+            write_atomic(write_hal, res.hal, protect=inputs)
+        if out is not None:
+            src = read_program(program, default_units=res.units)
+            write_atomic(out, ready_program_text(src, res.edits).encode("latin-1"), protect=inputs)
     except IlcncError as exc:
         _fail(exc)
     if as_json:
-        typer.echo(json.dumps({**res.to_json(), "hal_file": str(write_hal) if write_hal else None}))
+        typer.echo(json.dumps({**res.to_json(), "hal_file": str(write_hal) if write_hal else None,
+                               "out": str(out) if out else None}))
         return
     typer.echo(res.text(write_hal), nl=False)
+    if out is not None:
+        typer.echo(f"wrote {out}: {len(res.edits)} path-control edit{'s' if len(res.edits) != 1 else ''} made"
+                   + (" (run, log and learn this program)" if res.edits else " (none needed: a copy)"))

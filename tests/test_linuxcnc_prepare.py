@@ -6,11 +6,13 @@ import json
 import re
 from pathlib import Path
 
+import numpy as np
 from typer.testing import CliRunner
 
 from ilcnc.axislog.halsampler import HALSAMPLER_COLUMNS
 from ilcnc.cli import app
 from ilcnc.outcomes import PathMode
+from ilcnc.program import read_program
 from ilcnc.shop.linuxcnc_prepare import prepare_run, sampler_hal
 from tests.conftest import OWN, REPO, SAMPLES, cli_output
 
@@ -74,3 +76,50 @@ def test_g61_program_is_ready() -> None:
     assert res.ready and {r.mode for r in res.ranges} == {PathMode.EXACT_PATH}
     assert [s.line for s in res.settings if s.mode is PathMode.EXACT_PATH] == [11]
     assert any("no --ini" in n for n in res.notes)
+
+
+def _prepare_out(prog: Path, out: Path, *extra: str):
+    return runner.invoke(app, ["linuxcnc", "prepare", str(prog), "--profile", str(PROFILE), "--out", str(out),
+                               "--json", *extra])
+
+
+def test_out_inserts_the_path_control_and_keeps_every_line(tmp_path: Path) -> None:
+    """jsdc (no path control): --out inserts one marked `G64 P0.01 Q0` before the first move; every other line is
+    the input's, byte for byte; the ready program moves the tool exactly as the input and needs nothing more."""
+    src = SAMPLES / "gcode" / "jsdc.gcode"
+    out = tmp_path / "jsdc.ready.gcode"
+    res = _prepare_out(src, out)
+    assert res.exit_code == 0, res.output
+    d = json.loads(res.stdout)
+    assert d["edits"] == [{"line": 3, "action": "insert", "words": "G64 P0.01 Q0", "why": d["changes"][0]}]
+    assert d["out"] == str(out) and f"ilcnc learn {out} " in d["learn"]
+    a, b = src.read_bytes().split(b"\n"), out.read_bytes().split(b"\n")
+    assert b[2] == b"G64 P0.01 Q0 (ilcnc prepare)" and b[:2] + b[3:] == a
+    assert prepare_run(out, PROFILE).ready
+    p, q = read_program(src), read_program(out)
+    assert np.array_equal(p.moves.end_mm, q.moves.end_mm) and np.array_equal(p.command_line + 1, q.command_line)
+    again = _prepare_out(src, out)
+    assert again.exit_code == 2 and "--force" in again.output and out.read_bytes() == b"\n".join(b)
+    assert _prepare_out(src, src).exit_code == 2 and src.read_bytes() == b"\n".join(a)  # never over an input
+
+
+def test_out_replaces_g64_words_in_place_with_crlf(tmp_path: Path) -> None:
+    """square.ngc's `G64 P0.05 Q0` (beyond the 0.01 mm tolerance) becomes `G64 P0.01 Q0` on its own line, the
+    other words and the file's CRLF line ends kept; no line moves."""
+    prog = tmp_path / "sq.ngc"
+    prog.write_bytes((OWN / "square.ngc").read_bytes().replace(b"\n", b"\r\n"))
+    out = tmp_path / "sq.ready.ngc"
+    res = _prepare_out(prog, out)
+    assert res.exit_code == 0, res.output
+    a, b = prog.read_bytes().split(b"\r\n"), out.read_bytes().split(b"\r\n")
+    assert b[1] == b"G21 G90 G17 G64 P0.01 Q0 (ilcnc prepare)" and b[:1] + b[2:] == a[:1] + a[2:]
+    assert prepare_run(out, PROFILE).ready
+
+
+def test_out_refuses_a_g64_given_by_a_parameter(tmp_path: Path) -> None:
+    prog = tmp_path / "param.ngc"
+    prog.write_text((OWN / "square.ngc").read_text().replace("G64 P0.05 Q0", "G64 P[#1 * 0.05]"))
+    out = tmp_path / "param.ready.ngc"
+    res = _prepare_out(prog, out)
+    assert res.exit_code == 1 and not out.exists()
+    assert f"{prog}:2:" in res.output and "G64's P or Q is an expression" in res.output

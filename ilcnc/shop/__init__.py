@@ -39,9 +39,10 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'profile_from_ini', 'startup_path_control', 'write_ini_profile'
     ),
     'linuxcnc_prepare': (
-        'DEFAULT_SAMPLER_DEPTH', 'PathRange', 'PathSetting', 'Preparation', 'path_ranges', 'path_settings',
-        'prepare_run', 'sampler_hal'
+        'DEFAULT_SAMPLER_DEPTH', 'PathEdit', 'PathRange', 'PathSetting', 'Preparation', 'path_ranges',
+        'path_settings', 'prepare_run', 'sampler_hal'
     ),
+    'path_control_edit': ('MARK', 'apply_path_edits', 'ready_program_text'),
     'log_identity': (
         'LogIdentity', 'MIN_ON_PATH_SHARE', 'check_block_numbers', 'check_log_identity', 'check_log_order',
         'log_quantum_mm', 'samples_fingerprint'

@@ -33,7 +33,7 @@ from ilcnc.shop.linuxcnc_config import read_ini_file
 from ilcnc.shop.linuxcnc_profile import joints_of_axes, startup_path_control
 from ilcnc.units import AXIS_NAMES, MM_PER_INCH
 
-__all__ = ["DEFAULT_SAMPLER_DEPTH", "PathRange", "PathSetting", "Preparation", "path_ranges", "path_settings",
+__all__ = ["DEFAULT_SAMPLER_DEPTH", "PathEdit", "PathRange", "PathSetting", "Preparation", "path_ranges", "path_settings",
            "prepare_run", "sampler_hal"]
 
 #: Sampler FIFO depth: 100 s at 1 kHz, 6.4 MB of shared memory (docs/linuxcnc.md section 2).
@@ -125,7 +125,7 @@ class Preparation:
     startup: str
     ranges: list[PathRange]
     settings: list[PathSetting]
-    changes: list[str]
+    edits: list[PathEdit]
     warnings: list[str]
     joints: dict[str, int]
     hal: str
@@ -134,8 +134,13 @@ class Preparation:
     notes: list[str] = field(default_factory=list)
 
     @property
+    def changes(self) -> list[str]:
+        """The edits as the command says them."""
+        return [e.why for e in self.edits]
+
+    @property
     def ready(self) -> bool:
-        return not self.changes
+        return not self.edits
 
     def to_json(self) -> dict[str, Any]:
         return {"program": str(self.program), "profile": str(self.profile),
@@ -143,6 +148,7 @@ class Preparation:
                 "corner_tolerance_mm": self.tolerance_mm, "startup": self.startup, "ready": self.ready,
                 "path_control": [r.to_json() for r in self.ranges],
                 "settings": [s.to_json() for s in self.settings], "changes": self.changes,
+                "edits": [e.to_json() for e in self.edits],
                 "warnings": self.warnings, "joints": self.joints, "hal": self.hal, "record": self.record,
                 "learn": self.learn, "notes": self.notes}
 
@@ -230,8 +236,12 @@ def _first_move_line(program: Program) -> int | None:
 
 
 def prepare_run(program_path: str | Path, profile_path: str | Path, *, ini_path: str | Path | None = None,
-                depth: int = DEFAULT_SAMPLER_DEPTH) -> Preparation:
-    """Say what a log run of ``program_path`` on a LinuxCNC machine needs (see the module docstring)."""
+                depth: int = DEFAULT_SAMPLER_DEPTH, run_path: str | Path | None = None) -> Preparation:
+    """Say what a log run of ``program_path`` on a LinuxCNC machine needs (see the module docstring).
+
+    ``run_path``: the program that will run instead, ``program_path`` with the edits made (``prepare --out``):
+    the command that learns from the log names it.
+    """
     prof = load_profile(profile_path)
     program = read_program(program_path, default_units=prof.machine.units)
     if program.dialect not in ("linuxcnc", "grbl", "fanuc"):
@@ -268,43 +278,68 @@ def prepare_run(program_path: str | Path, profile_path: str | Path, *, ini_path:
     ranges = path_ranges(program)
     settings = path_settings(program)
     warnings = corner_rounding_warnings(program, tol, default_mode)
-    changes = _changes(program, ranges, settings, tol, default_mode)
+    edits = _changes(program, ranges, settings, tol, default_mode)
     units = program.units
-    stem = program.path.with_suffix("")
-    suffix = program.path.suffix or ".ngc"
+    runs = Path(run_path) if run_path is not None else program.path
+    stem = runs.with_suffix("")
+    suffix = runs.suffix or ".ngc"
     hal = sampler_hal(joints, depth)
     record = "./ilcnc-record.sh run0.log    # docs/linuxcnc.md 5.1: halsampler -t run0.log while sampler.0.enable is 1"
-    learn = (f"ilcnc learn {program_path} --profile {profile_path} --log run0.log"
+    learn = (f"ilcnc learn {run_path if run_path is not None else program_path} --profile {profile_path} --log run0.log"
              f"{' --log-units inch' if log_units == 'inch' else ''} --state {stem}.state --out {stem}.ilc1{suffix}")
     return Preparation(program=program.path, profile=Path(profile_path), ini=Path(ini_path) if ini_path else None,
                        units=units, log_units=log_units, tolerance_mm=tol, startup=startup, ranges=ranges,
-                       settings=settings, changes=changes, warnings=warnings, joints=joints, hal=hal,
+                       settings=settings, edits=edits, warnings=warnings, joints=joints, hal=hal,
                        record=record, learn=learn, notes=notes)
 
 
+@dataclass(frozen=True, kw_only=True)
+class PathEdit:
+    """One edit the program needs before its first run (:func:`ilcnc.shop.path_control_edit.apply_path_edits`).
+
+    ``insert``: a new line of ``words`` before source line ``line``; else the path control words (``G64`` and
+    its P and Q) of line ``line`` become ``words``. ``why`` is the change as the command says it.
+    """
+
+    line: int
+    insert: bool
+    words: str
+    why: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"line": self.line, "action": "insert" if self.insert else "replace", "words": self.words,
+                "why": self.why}
+
+
 def _changes(program: Program, ranges: list[PathRange], settings: list[PathSetting], tol_mm: float,
-             default_mode: str) -> list[str]:
+             default_mode: str) -> list[PathEdit]:
     """The edits the program needs before its first run (empty: run it as it is)."""
     units = program.units
     word = f"G64 P{_in(tol_mm, units)} Q0"
-    out: list[str] = []
+    out: list[PathEdit] = []
     unset = [r for r in ranges if r.mode is PathMode.UNSET]
     if unset and default_mode in ("g64", "tolerance"):
         first = _first_move_line(program)
         where = f"before line {first} (the first move)" if first else "at the top"
-        out.append(f"{sum(r.moves for r in unset)} feed moves (first on line {unset[0].first_line}) run in the"
-                   f" control's start-up mode: insert a line `{word}` {where}")
+        out.append(PathEdit(line=first or 1, insert=True, words=word,
+                            why=f"{sum(r.moves for r in unset)} feed moves (first on line {unset[0].first_line}) run"
+                                f" in the control's start-up mode: insert a line `{word}` {where}"))
     for s in settings:
         if s.mode is PathMode.UNBOUNDED:
-            out.append(f"line {s.line}: G64 without P rounds corners as far as the axes allow: make it `{word}`")
+            out.append(PathEdit(line=s.line, insert=False, words=word,
+                                why=f"line {s.line}: G64 without P rounds corners as far as the axes allow: make it"
+                                    f" `{word}`"))
         elif s.mode is PathMode.BOUNDED and s.p is not None:
             p_mm = s.p * (MM_PER_INCH if units == "inch" else 1.0)
             if p_mm > tol_mm * (1 + 1e-9):
-                out.append(f"line {s.line}: G64 P{s.p:g} rounds corners by up to {p_mm:g} mm, beyond the profile's"
-                           f" corner tolerance {tol_mm:g} mm: make it `{word}` (or raise"
-                           " planner.corner_tolerance_mm)")
+                out.append(PathEdit(line=s.line, insert=False, words=word,
+                                    why=f"line {s.line}: G64 P{s.p:g} rounds corners by up to {p_mm:g} mm, beyond the"
+                                        f" profile's corner tolerance {tol_mm:g} mm: make it `{word}` (or raise"
+                                        " planner.corner_tolerance_mm)"))
             elif s.q is None or s.q > 0:
                 q = "without Q" if s.q is None else f"Q{s.q:g}"
-                out.append(f"line {s.line}: G64 P{s.p:g} {q}: LinuxCNC merges short collinear G1s into one segment"
-                           " (Q defaults to P), which the log then cannot tell apart: add Q0")
+                out.append(PathEdit(line=s.line, insert=False, words=f"G64 P{s.p:g} Q0",
+                                    why=f"line {s.line}: G64 P{s.p:g} {q}: LinuxCNC merges short collinear G1s into"
+                                        " one segment (Q defaults to P), which the log then cannot tell apart: add"
+                                        " Q0"))
     return out
