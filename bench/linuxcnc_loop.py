@@ -6,11 +6,13 @@ Usage::
     python bench/linuxcnc_loop.py PROG.ngc --iterations 4 --profile configs/linuxcnc-sim.yaml
     python bench/linuxcnc_loop.py --check               # exit 1 when a target is missed
     python bench/linuxcnc_loop.py PROG.ngc --refine      # refined from the first log (learn --refine, issue 18)
+    python bench/linuxcnc_loop.py PROG.ngc --as-is       # without prepare's path-control edits
 
 One run does what a shop does, on LinuxCNC's own interpreter, planner and motion controller
 (``configs/linuxcnc-sim``, time-scaled ×8):
 
-    run the program → ``ilcnc learn --log`` → compensated program → run it → next log → …
+    ``ilcnc linuxcnc prepare --out`` → run the program → ``ilcnc learn --log`` → compensated program → run it →
+    next log → …
 
 for N learning iterations, and ``ilcnc simulate --compare`` on the first log (how well the virtual CNC
 predicts LinuxCNC). It prints the contour error (RMS, max) of every run, its change over the N
@@ -21,7 +23,10 @@ The default program is ``samples/third_party/gcode/KB-219 test.gcode`` (an insol
 GPL-3.0-only, see samples/MANIFEST.tsv), run as a copy made LinuxCNC-ready: its grbl
 homing line ``$H`` and its ``G10 L20 P1 X0 Y0 Z50`` (which would shift the work offset, while the log
 is in machine coordinates) become comments, and ``M2`` is appended (LinuxCNC refuses a file without a
-program end). Line numbers are kept. The copy is the drawing. ~12 min on the 2-core machine.
+program end). Line numbers are kept. Then, as docs/linuxcnc.md section 4.1 tells a shop,
+``ilcnc linuxcnc prepare --out`` makes prepare's path-control edits (a program without path control gets a
+``G64 P0.01 Q0`` line before its first move: LinuxCNC's start-up ``G64`` without P rounds corners as far as
+the axes allow); ``--as-is`` skips this. That program is the drawing. ~12 min on the 2-core machine.
 
 Needs LinuxCNC (Debian: ``apt-get install linuxcnc-uspace``); one run at a time per machine.
 """
@@ -39,6 +44,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "samples" / "third_party" / "gcode" / "KB-219 test.gcode"
 PROFILE = ROOT / "configs" / "linuxcnc-sim.yaml"
+SIM_INI = ROOT / "configs" / "linuxcnc-sim" / "sim.ini"
 TARGET_REDUCTION = 0.60
 TARGET_CORRELATION = 0.9
 TARGET_DIFFERENCE = 0.2
@@ -85,12 +91,20 @@ def main() -> int:
     ap.add_argument("--keep", type=Path, help="Keep the programs, logs and state here (default: a temporary folder).")
     ap.add_argument("--check", action="store_true", help="Exit 1 when a target is missed.")
     ap.add_argument("--refine", action="store_true", help="Refine from the first log (learn --refine).")
+    ap.add_argument("--as-is", dest="as_is", action="store_true",
+                    help="Run the program without linuxcnc prepare's path-control edits.")
     a = ap.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="ilcnc-lcnc-bench-") as tmp:
         d = a.keep or Path(tmp)
         d.mkdir(parents=True, exist_ok=True)
         part = linuxcnc_ready(a.program, d / (a.program.stem.replace(" ", "_") + ".ngc"))
+        if not a.as_is:
+            ready = part.with_name(part.stem + ".ready.ngc")
+            prep = cli("linuxcnc", "prepare", part, "--profile", a.profile, "--ini", SIM_INI, "--out", ready)
+            print(f"prepare: {len(prep['edits'])} path-control edit(s): " + ("; ".join(prep["changes"]) or "none"),
+                  flush=True)
+            part = ready
         state = d / "state"
         program = part
         t_run = t_learn = 0.0

@@ -128,7 +128,20 @@ def test_jsdc_refined(tmp_path: Path) -> None:
     out = _learn(orig, tmp_path / "jsdc.gcode", "--refine", "--iterations", "2")
     d = _check_against_state(orig, out)
     assert d["_checked"] > 3000 and d["summary"]["lines_inserted"] > 0
-    # the two retracts whose X was written out to keep their end after the previous command moved
+    # the corner where a path ends and the tool retracts (behind jsdc's repeated last point) is refined: a point
+    # on the retract's part in the material, before the retract's own line
+    lines = out.read_text().splitlines()
+    retracts = [i for i, ln in enumerate(lines) if ln.startswith("G1 Z1.0000 F2540")]
+    assert len(retracts) >= 5
+    assert sum(lines[i - 1].endswith("; ilcnc refine") for i in retracts) >= 5
+
+
+def test_jsdc_retracts_written_out(tmp_path: Path) -> None:
+    """Without refinement the point before each retract is corrected; the retract, kept as programmed (air),
+    gets the X or Y word it did not need before, which diff lists as a word without an old value."""
+    orig = REPO / "samples" / "jsdc.gcode"
+    out = _learn(orig, tmp_path / "jsdc.gcode", "--iterations", "2")
+    d = _check_against_state(orig, out)
     kept = [c for c in d["changed"] if not any(abs(v) > 1e-6 for v in c["delta_um"].values())]
     assert kept and all(all(w["old"] is None for w in c["words"]) for c in kept)
 

@@ -158,39 +158,40 @@ def test_move_errors_count_foot_and_reference_move():
 
 
 def test_learn_lowers_feeds_only_where_the_geometry_stalled():
-    """compass on the example mill, refined: the geometry learns and stalls (measured max 13.32 -> 11.75 µm after
-    four iterations), then a feed step slows the moves where the error is left, within the +2 % budget, and
-    lowers the max a little (measured 11.75 -> 11.67 µm at +1.6 % cycle time, 40 moves); every slowed move is
-    reported, and the output differs from a corrections-only rewrite by F words alone. (On the planner's corner
-    rule before ilcnc.vcnc.plan_corners the corners were taken too slowly, the max was the drives' lag there and
-    the feed steps lowered it by 28 %; now it sits at corners the planner rounds to its 10 µm tolerance, which a
-    feed above the corner's own speed changes little: docs/learning.md.)"""
+    """compass on the example mill, refined: the geometry learns and stalls (measured max 13.32 -> 11.58 µm after
+    four iterations), then a feed step slows the moves where the error is left (52 moves, +1.3 % cycle time,
+    within the +2 % budget). It raises the max (11.58 -> 11.80 µm), so it is refused and learning stops with the
+    geometry's best, saying why. (Before the corner behind compass's repeated point at line 315 was refined, the
+    geometry stalled at 11.75 µm and the feed step took it to 11.67 µm; on the planner's corner rule the max sits
+    at corners the planner rounds to its 10 µm tolerance, which a feed above the corner's own speed changes
+    little: docs/learning.md.) The refused step is still recorded, and its program differs from the
+    corrections-only rewrite by F words alone."""
     profile = load_profile(MILL)
     on = dataclasses.replace(profile, learning=dataclasses.replace(
         profile.learning, refine=dataclasses.replace(profile.learning.refine, feed="on")))
     program = refine_for_learning(read_program(REPO / "samples" / "compass.ngc"), on).program
     off_res = learn_virtual(program, profile, iterations=5, error="lifted")
     res = learn_virtual(program, on, iterations=5, error="lifted")
-    first, best = res.iterations[0], res.best_record
-    assert res.feed is not None and res.feed.slowed
+    first = res.iterations[0]
     # until the geometry stalls both runs are the same run
     k = next(i for i, r in enumerate(res.iterations) if r.feed_scale is not None and np.any(r.feed_scale < 1))
     assert k >= 2
     for a, b in zip(off_res.iterations[:k], res.iterations[:k], strict=True):
         assert a.stats == b.stats
-    # the feed step lowers the max below what the geometry alone reached, within the budget
-    assert best.stats["max"] < min(r.stats["max"] for r in off_res.iterations if r.kept)
-    assert best.cycle_time_s <= first.cycle_time_s * 1.02 + 1e-9
-    # every slowed move is reported with its programmed and written feed
-    assert best.feed_scale is not None
-    assert len(res.feed.slowed) == int(np.count_nonzero(best.feed_scale < 1.0))
-    for d in res.feed.slowed:
-        f0, f1 = d["feed_mm_min"]
-        assert f1 < f0 and f1 >= 0.25 * f0 - 0.5
-    # the output: the corrections-only rewrite plus F words
-    text_geo, _p = program_with_corrections(program, best.corrections_mm, on)
-    a, b = text_geo.splitlines(), best.text.splitlines()
-    assert len(a) == len(b)
+    step = res.iterations[k]
+    assert step.feed_scale is not None and int(np.count_nonzero(step.feed_scale < 1.0)) > 0
+    assert step.cycle_time_s <= first.cycle_time_s * 1.02 + 1e-9  # within the budget
+    assert step.feed_scale[step.feed_scale < 1.0].min() >= 0.25 - 1e-12  # never below a quarter of the feed
+    # it did not lower the error: refused, and learning ends with the geometry's best, which keeps every feed
+    best_geo = min(r.stats["max"] for r in res.iterations[:k] if r.kept)
+    assert step.stats["max"] > best_geo and not step.kept
+    assert "feed step" in res.message and "did not lower the error" in res.message
+    assert res.feed is not None and not res.feed.slowed
+    assert res.best_record.feed_scale is None or not np.any(res.best_record.feed_scale < 1.0)
+    # the refused step's program: the corrections-only rewrite plus F words
+    text_geo, _p = program_with_corrections(program, step.corrections_mm, on)
+    a, b = text_geo.splitlines(), step.text.splitlines()
+    assert len(a) == len(b) and a != b
     for x, y in zip(a, b, strict=True):
         if x != y:
             assert _F.sub("", x).rstrip() == _F.sub("", y).rstrip()

@@ -199,7 +199,11 @@ def test_the_measured_workflow_refines_from_the_log_of_the_original(tmp_path: Pa
     code, msg = _run("learn", src, "--profile", MILL, "--log", tmp_path / "again.csv", "--state", state,
                      "--out", tmp_path / "x.gcode")
     errors = [ln for ln in msg.splitlines() if ln.strip()]
-    assert code == 1 and len(errors) == 1 and "again.csv" in errors[0] and "log of another program" in errors[0]
+    # refused by the first check that sees it: its line numbers (most run lines that hold no move of the refined
+    # program) or, where the inserted lines happen to shift enough of them onto moves, its positions (off the
+    # refined program's path); either way one line naming the log and saying it is not this program's
+    assert code == 1 and len(errors) == 1 and "again.csv" in errors[0]
+    assert "log of another program" in errors[0] or "not a log of this program" in errors[0], errors[0]
     assert {p.name: p.read_bytes() for p in state.iterdir()} == before and not (tmp_path / "x.gcode").exists()
 
 

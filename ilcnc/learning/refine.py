@@ -51,6 +51,7 @@ from numpy.typing import NDArray
 
 from ilcnc.contour.air import MOVE_CUT
 from ilcnc.errors import InputError
+from ilcnc.learning.move_limits import ZERO_LENGTH_MM
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_ARC_CW, MOVE_LINE, MOVE_RAPID, Program
 
@@ -237,8 +238,15 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
     def spacing(move: int) -> float:
         return max(cfg.min_spacing_periods * feed_mm_s[move] * period, 1e-3)
 
+    # a point the program repeats (a zero-length straight block) is one point: the corner is between the moves
+    # either side of it (jsdc writes one at corners and before retracts; without this they were never refined)
+    repeat = (mv.kind == MOVE_LINE) & (length <= ZERO_LENGTH_MM)
     for i in range(m - 1):
+        if repeat[i] and i > 0:
+            continue
         j = i + 1
+        while j < m - 1 and repeat[j]:
+            j += 1
         if not np.allclose(mv.end_mm[i], mv.start_mm[j], atol=1e-6) or length[j] <= 0:
             continue
         if mv.kind[i] == MOVE_RAPID and straight[j]:
