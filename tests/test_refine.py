@@ -200,10 +200,12 @@ def test_the_measured_workflow_refines_from_the_log_of_the_original(tmp_path: Pa
                      "--out", tmp_path / "x.gcode")
     errors = [ln for ln in msg.splitlines() if ln.strip()]
     # refused by the first check that sees it: its line numbers (most run lines that hold no move of the refined
-    # program) or, where the inserted lines happen to shift enough of them onto moves, its positions (off the
-    # refined program's path); either way one line naming the log and saying it is not this program's
+    # program) or, where the inserted lines shift enough of them onto moves, its positions (22 % of its feed
+    # samples more than 2 mm from the moves their lines name in the refined program); either way one line
+    # naming the log and saying it is not of this program
     assert code == 1 and len(errors) == 1 and "again.csv" in errors[0]
-    assert "log of another program" in errors[0] or "not a log of this program" in errors[0], errors[0]
+    assert any(s in errors[0] for s in ("log of another program", "not a log of this program",
+                                        "not a run of this program")), errors[0]
     assert {p.name: p.read_bytes() for p in state.iterdir()} == before and not (tmp_path / "x.gcode").exists()
 
 
