@@ -24,7 +24,7 @@ import numpy as np
 from ilcnc.outcomes import PathMode
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
-from ilcnc.units import length_word
+from ilcnc.units import MM_PER_INCH, length_word
 from ilcnc.vcnc.rounding import (
     CornerError,
     VertexMax,
@@ -59,6 +59,13 @@ def _set_word(program: Program, tol_mm: float) -> str:
     """The block(s) that set a blend tolerance in the program's dialect and units."""
     w = length_word(tol_mm, program.units)
     return f"CYCL DEF 32.0 TOLERANCE / CYCL DEF 32.1 T{w}" if _klartext(program) else f"G64 P{w}"
+
+
+def _word_mm(tol_mm: float, units: str) -> float:
+    """``tol_mm`` as the number a program word can carry (:func:`ilcnc.units.length_word`'s decimals), rounded down
+    so that the written tolerance still bounds the rounding to at most ``tol_mm`` (at least one step), mm."""
+    scale = (1e5 / MM_PER_INCH) if units == "inch" else 1e4  # steps per mm
+    return max(math.floor(tol_mm * scale * (1 + 1e-12)), 1) / scale
 
 
 def _own_word(program: Program, profile: MachineProfile, move: int) -> str:
@@ -147,7 +154,7 @@ class Tightening:
         now = max(r.rounding_mm for r in self.ranges) * 1e3
         after = max(r.rounding_after_mm for r in self.ranges) * 1e3
         return (f"{self.word} on line{'s' if len(self.ranges) > 1 or '-' in lines else ''} {lines} (the program's own"
-                f" mode after each) bounds the planner's rounding there to {self.tolerance_mm * 1e3:g} µm (now up to"
+                f" mode after each) bounds the planner's rounding there to {self.tolerance_mm * 1e3:.4g} µm (now up to"
                 f" {now:.2f} µm, planned {after:.2f} µm): cycle time {self.cycle_before_s:.2f} →"
                 f" {self.cycle_after_s:.2f} s ({self.extra_pct:+.2f} %)")
 
@@ -242,7 +249,8 @@ def corner_report(program: Program, profile: MachineProfile, vertices: VertexMax
         rep.notes.append(f"no listed corner's error is mostly ({ROUNDING_SHARE:.0%} or more) the planner's rounding:"
                          " a tighter tolerance would not lower it much")
         return rep
-    target = target_um * 1e-3 if target_um is not None else 0.5 * min(c.tolerance_mm for c in mostly)
+    target = _word_mm(target_um * 1e-3 if target_um is not None else 0.5 * min(c.tolerance_mm for c in mostly),
+                      program.units)
     chosen = [c for c in mostly if c.rounding_mm > target]
     if not chosen:
         rep.notes.append(f"the planner's rounding at the listed corners is already within {target * 1e3:g} µm")

@@ -31,7 +31,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'machine_errors': ('ErrorSources', 'wall_normals'),
     'plan': (
         'Reference', 'ReferenceChunk', 'check_limits', 'corner_zones_mm', 'plan_chunks', 'plan_moves', 'plan_program',
-        'planned_duration_s', 'planned_move_times_s', 'profile_moves'
+        'planned_duration_s', 'planned_move_times_s', 'profile_moves', 'vertex_tolerances_mm'
     ),
     'plan_base': ('EPS_MM', 'MAX_RUN_SAMPLES', 'PlanLimits', 'check_run_length', 'move_directions', 'nominal_speed_mm_s'),
     'plan_corners': ('BLEND_LENGTH_FRACTION', 'RoundingTables', 'junction_speeds', 'junction_tolerances', 'rounding_tables'),

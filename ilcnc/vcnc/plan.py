@@ -127,7 +127,7 @@ from ilcnc.vcnc.plan_kernels import BLOCK_SAMPLES, arc_table, group_kernel, grou
 
 __all__ = [
     "Reference", "ReferenceChunk", "check_limits", "corner_zones_mm", "plan_chunks", "plan_moves", "plan_program",
-    "planned_duration_s", "planned_move_times_s", "profile_moves"
+    "planned_duration_s", "planned_move_times_s", "profile_moves", "vertex_tolerances_mm"
 ]
 
 _EPS = EPS_MM
@@ -481,6 +481,37 @@ def corner_zones_mm(program: object, profile: MachineProfile) -> tuple[NDArray[n
     for g in setups:
         _v_in, _v_out, z_in[g.idx], z_out[g.idx] = _zones(g.v, g.vj, g.span_s)
     return z_in, z_out
+
+
+def vertex_tolerances_mm(program: object, profile: MachineProfile) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The corner tolerance the planner rounds each end point of the program's moves within, mm, (M + 1,).
+
+    Entry ``e`` is the end of move ``e - 1`` (the start of move ``e``): the junction rule of the plan
+    (:func:`ilcnc.vcnc.plan_corners.junction_tolerances` on the collinear chains), 0 where the axes stop, NaN where
+    two moves of one group do not meet (a group's ends, zero-length moves). The second array is the same without
+    LinuxCNC's quarter-move bound on a programmed tolerance.
+    """
+    moves = profile_moves(program, profile)
+    m = len(moves)
+    tol, free = np.full(m + 1, np.nan), np.full(m + 1, np.nan)
+    length = move_lengths_mm(moves)
+    hold_s = _stand_still_s(moves, length)
+    active = (length > _EPS) | (hold_s > 0.0)
+    geo = _Geometry(*move_directions(moves), arc_sweep_rad(moves))
+    default = profile.planner.corner_tolerance_mm
+    for g0, g1 in _groups(moves.kind, active):
+        idx = np.arange(g0, g1)
+        idx = idx[active[idx]]
+        if idx.size < 2:
+            continue
+        hold = hold_s[idx]
+        seg_len = np.where(hold > 0.0, np.inf, length[idx])
+        before, after = _chain_lengths(seg_len, _straight_joins(moves, geo, idx, hold))
+        t, stop = junction_tolerances(moves.blend_tol_mm[idx], default, seg_len, before, after)
+        t_free, _stop = junction_tolerances(moves.blend_tol_mm[idx], default, np.full(idx.size, np.inf))
+        tol[idx[:-1] + 1] = np.where(stop, 0.0, t)
+        free[idx[:-1] + 1] = np.where(stop, 0.0, t_free)
+    return tol, free
 
 
 def _group_setups(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corner_tolerance_mm: float,

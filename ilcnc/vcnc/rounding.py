@@ -33,10 +33,14 @@ from numpy.typing import NDArray
 from ilcnc.contour.air import air_above_mm, cutting_samples, profile_move_classes
 from ilcnc.outcomes import PathMode
 from ilcnc.profile.sections import MachineProfile
-from ilcnc.program.geometry import move_lengths_mm
 from ilcnc.program.model import MOVE_RAPID, Program
-from ilcnc.vcnc.plan import DEFAULT_CHUNK_SAMPLES, plan_chunks, planned_duration_s, profile_moves
-from ilcnc.vcnc.plan_corners import junction_tolerances
+from ilcnc.vcnc.plan import (
+    DEFAULT_CHUNK_SAMPLES,
+    plan_chunks,
+    planned_duration_s,
+    profile_moves,
+    vertex_tolerances_mm,
+)
 
 __all__ = ["CornerError", "ToleranceCost", "VertexMax", "VertexTolerances", "corner_errors", "planner_rounding",
            "tolerance_cost", "vertex_tolerances"]
@@ -145,33 +149,21 @@ class VertexTolerances:
 
 
 def vertex_tolerances(program: Program, profile: MachineProfile) -> VertexTolerances:
-    """The tolerance the planner rounds each vertex of ``program`` within, and where it comes from.
-
-    The rule is the planner's (:func:`ilcnc.vcnc.plan_corners.junction_tolerances`) on the moves' own lengths;
-    a straight line split into collinear moves has the line's length there, which only the quarter bound of a
-    program's tolerance reads.
-    """
+    """The tolerance the planner rounds each vertex of ``program`` within, and where it comes from
+    (:func:`ilcnc.vcnc.plan.vertex_tolerances_mm`: the planner's own rule, on its collinear chains)."""
     own = program.moves.blend_tol_mm
     mv = profile_moves(program, profile)
     m = len(mv)
-    tol = np.full(m + 1, np.nan)
+    tol, free = vertex_tolerances_mm(program, profile)
     mode = np.full(m + 1, PathMode.UNSET, dtype=object)
     by_program = np.zeros(m + 1, dtype=np.bool_)
-    quarter = np.zeros(m + 1, dtype=np.bool_)
     if m >= 2:
-        length = move_lengths_mm(mv)
-        default = profile.planner.corner_tolerance_mm
-        tol_j, stop = junction_tolerances(mv.blend_tol_mm, default, length)
-        tol_j = np.where(stop, 0.0, tol_j)
         feed = mv.kind != MOVE_RAPID
-        inner = feed[:-1] & feed[1:]
-        tol[1:m] = np.where(inner, tol_j, np.nan)
-        # LinuxCNC's quarter-move bound took the tolerance down where it is below the one without it
-        free, _stop = junction_tolerances(mv.blend_tol_mm, default, np.full(m, np.inf))
-        quarter[1:m] = inner & (tol_j > 0) & (tol_j < free * (1 - 1e-12))
-        before = mv.blend_tol_mm[:-1]
-        mode[1:m] = [PathMode.of_tolerance(float(t)) for t in before]
+        tol[1:m] = np.where(feed[:-1] & feed[1:], tol[1:m], np.nan)
+        mode[1:m] = [PathMode.of_tolerance(float(t)) for t in mv.blend_tol_mm[:-1]]
         by_program[1:m] = ~np.isnan(own[:-1])
+    # LinuxCNC's quarter-move bound took the tolerance down where it is below the one without it
+    quarter = np.isfinite(tol) & (tol > 0) & (tol < free * (1 - 1e-12))
     return VertexTolerances(tolerance_mm=tol, mode=mode, set_by_program=by_program, quarter=quarter)
 
 
