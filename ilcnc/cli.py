@@ -210,6 +210,11 @@ def simulate(
     cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
     corners: Annotated[int, typer.Option("--corners", min=0, max=100, help=_CORNERS_HELP)] = 5,
     target_um: Annotated[float | None, typer.Option("--target-um", help=_TARGET_UM_HELP)] = None,
+    tighter_out: Annotated[
+        Path | None, typer.Option("--tighter-out", help="Write PROGRAM with the suggested G64 P before those corners'"
+                                  " lines and its own path control after them (LinuxCNC G-code; lines marked"
+                                  " '(ilcnc tighter ...)').")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     debug: DebugOption = False,
 ) -> None:
@@ -219,7 +224,8 @@ def simulate(
     from ilcnc.vcnc import simulate as sim_mod
 
     if compare is not None:
-        bad = [o for o, v in (("--log-out", log_out), ("--against", against), ("--schedule", schedule)) if v is not None]
+        bad = [o for o, v in (("--log-out", log_out), ("--against", against), ("--schedule", schedule),
+                              ("--tighter-out", tighter_out)) if v is not None]
         if bad:
             _fail(UsageError("--compare", f"judges the virtual CNC on PROGRAM as it is: it does not go with {bad[0]}"))
         _compare(program, profile, compare, log_format, log_units, log_columns, _parse_offset(log_offset), as_json)
@@ -256,6 +262,12 @@ def simulate(
 
             rep = corner_report(orig or prog, prof, vm, top=corners, target_um=target_um,
                                 cycle_time_s=None if orig is not None else result.cycle_time_s)
+        if tighter_out is not None:
+            from ilcnc.shop.corners import write_tightened
+
+            written = write_tightened(prog, prof, rep, tighter_out, drawing=orig,
+                                      protect=(profile,) + ((against,) if against is not None else ()))
+            rep.add_written(tighter_out, written)
     except IlcncError as exc:
         _fail(exc)
     if as_json:

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import re
+import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -66,11 +69,12 @@ def test_the_suggested_tolerance_costs_what_the_program_with_it_plans(prof, tmp_
     t = rep.tightening
     assert t is not None and t.word == "G64 P0.025"  # half the program's 0.05 mm
     (r,) = t.ranges  # lines 4-7 end the four corners: one range
-    assert (r.first_line, r.last_line, r.before, r.after) == (4, 7, "G64 P0.025", "G64 P0.05")
+    # the program's own words after the range, its Q0 too, and on the tighter block
+    assert (r.first_line, r.last_line, r.before, r.after) == (4, 7, "G64 P0.025 Q0", "G64 P0.05 Q0")
     assert 0.0 < r.rounding_after_mm <= 0.025 < r.rounding_mm
     # the program with those two lines written in plans to the cost the report gives, to the servo period
     lines = (OWN / "square.ngc").read_text().splitlines()
-    edited = [*lines[:3], "G64 P0.025 (ilcnc: tighter corner tolerance)", *lines[3:7], "G64 P0.05", *lines[7:]]
+    edited = [*lines[:3], "G64 P0.025 Q0 (ilcnc: tighter corner tolerance)", *lines[3:7], "G64 P0.05 Q0", *lines[7:]]
     path = tmp_path / "square-tight.ngc"
     path.write_text("\n".join(edited) + "\n")
     assert planned_duration_s(read_program(path), prof) == t.cycle_after_s
@@ -173,3 +177,63 @@ def test_learn_reports_the_corners_of_its_output(tmp_path: Path) -> None:
     # one more run of the output against the original: the output is the best kept iteration, the same figures
     assert cs["corners"][0]["max_mm"] == pytest.approx(best["contour_error_mm"]["max"], rel=1e-12)
     assert cs["corners"][0]["setting"] == "G64 P0.05 (the program's)"
+
+
+def test_tighter_out_writes_the_g64_p_lines_and_the_program_keeps_its_moves(tmp_path: Path) -> None:
+    src = REPO / "samples" / "compass.ngc"  # no G61/G64: the profile's 10 µm governs every corner
+    out = tmp_path / "compass-tight.ngc"
+    res = _cli("simulate", src, "--profile", PROFILE, "--tighter-out", out, "--json")
+    assert res.exit_code == 0, cli_output(res)
+    data = json.loads(res.stdout)["corners"]
+    written = data["tighter_out"]
+    assert written["path"] == str(out) and not written["skipped"]
+    old, new = src.read_bytes().split(b"\n"), out.read_bytes().split(b"\n")
+    added = [ln for ln in new if b"ilcnc tighter" in ln]
+    # two lines per corner range, everything else byte for byte in order
+    assert len(added) == 2 * len(data["tighter"]["ranges"]) and len(new) == len(old) + len(added)
+    assert [ln for ln in new if b"ilcnc tighter" not in ln] == old
+    first = data["tighter"]["ranges"][0]["first_line"]
+    assert new[first - 1].startswith(b"G64 P0.005 (ilcnc tighter") and new[first].startswith(old[first - 1])
+    assert new[first + 1].startswith(b"G64 P0.01 (ilcnc tighter")  # the profile's tolerance, as a word
+    prof = load_profile(PROFILE)
+    a, b = read_program(src), read_program(out)
+    np.testing.assert_array_equal(a.moves.end_mm, b.moves.end_mm)
+    # the written program plans to the time the output reports; its moves after each range are now held to the
+    # G64 P0.01 written there (LinuxCNC's quarter-move bound applies to a programmed tolerance), so it is at least
+    # the suggestion's planned time
+    assert planned_duration_s(b, prof) == written["cycle_time_s"] >= data["tighter"]["cycle_time_after_s"]
+    # the corners the suggestion named are now rounded within 5 µm
+    vm = VertexMax.empty(len(b.moves))
+    simulate_figures(b, prof, vertices=vm)
+    rd = planner_rounding(b, prof)
+    lines = {r["first_line"] for r in data["tighter"]["ranges"]}
+    moved = [i + 1 for i, ln in enumerate(a.moves.line.tolist()) if ln in lines]  # the vertex each move ends at
+    assert np.all(rd.max_mm[moved] <= 0.005)
+
+
+def test_tighter_out_refuses_what_it_cannot_write(tmp_path: Path) -> None:
+    jsdc = REPO / "samples" / "jsdc.gcode"  # a grbl program: no G64 P to write
+    res = _cli("simulate", jsdc, "--profile", PROFILE, "--tighter-out", tmp_path / "j.gcode")
+    assert res.exit_code == 1 and "grbl program" in cli_output(res)
+    assert not (tmp_path / "j.gcode").exists()
+    res = _cli("simulate", OWN / "square.ngc", "--profile", PROFILE, "--corners", "0", "--tighter-out",
+               tmp_path / "s.ngc")
+    assert res.exit_code == 2 and "--corners" in cli_output(res)
+
+
+@pytest.mark.linuxcnc
+@pytest.mark.skipif(shutil.which("rs274") is None, reason="LinuxCNC's interpreter rs274 is not installed (Debian:"
+                    " apt-get install linuxcnc-uspace): cannot check that LinuxCNC reads the tighter G64 P")
+def test_linuxcnc_reads_the_tighter_tolerance_and_the_programs_own_after_it(tmp_path: Path) -> None:
+    out = tmp_path / "square-tight.ngc"
+    res = _cli("simulate", OWN / "square.ngc", "--profile", PROFILE, "--tighter-out", out)
+    assert res.exit_code == 0, cli_output(res)
+    run = subprocess.run(["rs274", "-g", str(out)], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and "error" not in (run.stderr + run.stdout).lower(), run.stderr[-2000:]
+    modes = re.findall(r"SET_MOTION_CONTROL_MODE\(CANON_CONTINUOUS, ([0-9.]+)\)", run.stdout)
+    naive = re.findall(r"SET_NAIVECAM_TOLERANCE\(([0-9.]+)\)", run.stdout)
+    # the program's G64 P0.05 Q0, the tighter P0.025 (with the program's Q0) before line 4, its own after line 7
+    assert modes == ["0.050000", "0.025000", "0.050000"] and naive == ["0.0000"] * 3
+    feeds = re.findall(r"STRAIGHT_FEED\(([-0-9.]+), ([-0-9.]+), ([-0-9.]+)", run.stdout)
+    orig = subprocess.run(["rs274", "-g", str(OWN / "square.ngc")], capture_output=True, text=True, timeout=60)
+    assert feeds == re.findall(r"STRAIGHT_FEED\(([-0-9.]+), ([-0-9.]+), ([-0-9.]+)", orig.stdout)  # the same moves

@@ -11,8 +11,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'batch': ('BatchJob', 'PartResult', 'ReturnedPart', 'ShippedPart', 'folder_programs', 'jobs_from_path',
               'learn_shipped', 'retried', 'run_batch', 'ship_part', 'summary_csv', 'write_returned'),
     'corners': (
-        'CornerReport', 'DEFAULT_CORNERS', 'ROUNDING_SHARE', 'TighterRange', 'Tightening', 'corner_report',
-        'learned_corner_report', 'setting_text'
+        'CornerReport', 'DEFAULT_CORNERS', 'ROUNDING_SHARE', 'TIGHTER_MARKER', 'TightenedProgram', 'TighterRange',
+        'Tightening', 'corner_report', 'learned_corner_report', 'setting_text', 'tightened_text', 'write_tightened'
     ),
     'corrections': ('read_corrections', 'write_corrections'),
     'diff': (

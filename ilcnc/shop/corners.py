@@ -24,6 +24,7 @@ import numpy as np
 from ilcnc.outcomes import PathMode
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
+from ilcnc.shop.linuxcnc_prepare import PathSetting, path_settings
 from ilcnc.units import MM_PER_INCH, length_word
 from ilcnc.vcnc.rounding import (
     CornerError,
@@ -37,12 +38,16 @@ from ilcnc.vcnc.rounding import (
 __all__ = [
     "DEFAULT_CORNERS",
     "ROUNDING_SHARE",
+    "TIGHTER_MARKER",
     "CornerReport",
+    "TightenedProgram",
     "Tightening",
     "TighterRange",
     "corner_report",
     "learned_corner_report",
     "setting_text",
+    "tightened_text",
+    "write_tightened",
 ]
 
 #: How many corners the report lists by default.
@@ -84,6 +89,15 @@ def _own_word(program: Program, profile: MachineProfile, move: int) -> str:
     if mode is PathMode.BOUNDED:
         return f"G64 P{length_word(own, program.units)}"
     return str(mode)
+
+
+def _setting_word(st: PathSetting) -> str:
+    """A G-code program's own path-control block, from its words as written (P and Q in the program's units)."""
+    if st.mode is PathMode.BOUNDED:
+        return f"G64 P{st.p:g}" + (f" Q{st.q:g}" if st.q is not None else "")
+    if st.mode is PathMode.UNBOUNDED:
+        return "G64" + (f" Q{st.q:g}" if st.q is not None else "")
+    return str(st.mode)
 
 
 def setting_text(program: Program, profile: MachineProfile, c: CornerError, *, short: bool = False) -> str:
@@ -172,6 +186,20 @@ class CornerReport:
     tightening: Tightening | None = None
     notes: list[str] = field(default_factory=list)
     judged: str = ""  #: what run was judged, when it is not the program as given (learn's output)
+    written: dict[str, Any] | None = None  #: what ``--tighter-out`` wrote
+
+    def add_written(self, path: Path, done: TightenedProgram | None) -> None:
+        """Say what :func:`write_tightened` wrote to ``path`` (``done`` None or without ranges: nothing)."""
+        if done is None or not done.ranges:
+            why = "; ".join(done.skipped) if done is not None else "no tighter tolerance to write"
+            self.notes.append(f"{path}: not written ({why})")
+            self.written = {"path": None, "skipped": done.skipped if done is not None else []}
+            return
+        lines = ", ".join(r.lines for r in done.ranges)
+        self.notes.append(f"wrote {path}: {done.ranges[0].before} on lines {lines}, planned cycle time"
+                          f" {done.cycle_time_s:.2f} s" + "".join(f"; left out {k}" for k in done.skipped))
+        self.written = {"path": str(path), "ranges": [r.to_json() for r in done.ranges], "skipped": done.skipped,
+                        "cycle_time_s": done.cycle_time_s}
 
     def summary(self) -> str:
         """One line on the worst corner."""
@@ -198,6 +226,7 @@ class CornerReport:
                          "path_mode": str(c.mode), "set_by": "program" if c.set_by_program else "profile",
                          "setting": s} for c, s in zip(self.corners, self.settings, strict=True)],
             "tighter": None if self.tightening is None else self.tightening.to_json(),
+            "tighter_out": self.written,
             "notes": self.notes,
         }
 
@@ -265,12 +294,17 @@ def corner_report(program: Program, profile: MachineProfile, vertices: VertexMax
         rep.notes.append(f"the moves at these corners already run within {target * 1e3:g} µm or stop there")
         return rep
     word = _set_word(program, target)
+    settings = [] if _klartext(program) else path_settings(program)
     out: list[TighterRange] = []
     for first, last, cs in ranges:
         last_move = int(np.flatnonzero(sel & (mv.line <= last))[-1])
         after = np.nan_to_num(cost.rounding_after.max_mm[[c.vertex for c in cs]])
-        out.append(TighterRange(first_line=first, last_line=last, before=word,
-                                after=_own_word(program, profile, last_move),
+        # the program's own setting in force there, as written (its Q too: LinuxCNC merges short collinear G1s
+        # within Q, which defaults to P, so a G64 P written without the program's Q0 would change that)
+        gov = [st for st in settings if st.line <= first]
+        q = f" Q{gov[-1].q:g}" if gov and gov[-1].q is not None else ""
+        own = _setting_word(gov[-1]) if gov else _own_word(program, profile, last_move)
+        out.append(TighterRange(first_line=first, last_line=last, before=word + q, after=own,
                                 rounding_mm=max(c.rounding_mm for c in cs), rounding_after_mm=float(after.max())))
     rep.tightening = Tightening(tolerance_mm=target, word=word, ranges=out, moves=cost.moves,
                                 cycle_before_s=cost.cycle_before_s, cycle_after_s=cost.cycle_after_s)
@@ -295,3 +329,125 @@ def learned_corner_report(state_dir: Path, output: Path, profile: MachineProfile
     rep.judged = (f"{Path(output).name} on the virtual CNC, judged against the original's path (cutting max"
                   f" {run.stats.max_mm * 1e3:.2f} µm); the lines are the original's")
     return rep
+
+
+#: The comment that marks every line :func:`tightened_text` inserts.
+TIGHTER_MARKER = "ilcnc tighter"
+
+
+@dataclass(frozen=True, kw_only=True)
+class TightenedProgram:
+    """A G-code program with the tighter tolerance written in (:func:`tightened_text`)."""
+
+    text: str
+    ranges: list[TighterRange]  #: the ranges written
+    skipped: list[str]  #: the ranges left out, each with its reason
+    cycle_time_s: float  #: the written program's planned cycle time, s
+
+
+def tightened_text(program: Program, profile: MachineProfile, tightening: Tightening) -> TightenedProgram:
+    """``program``'s text with ``tightening``'s ``G64 P`` before each range and the program's own mode after it.
+
+    Only a LinuxCNC G-code program: ``G64 P`` is LinuxCNC's word (grbl and Fanuc set their corner tolerance
+    elsewhere), and a Klartext block inserted would renumber the blocks after it. A range in which the program
+    sets its own path control (``G61``/``G64`` on one of its lines) is left out: the block after it would undo
+    the program's. Each inserted line carries the comment ``(ilcnc tighter ...)``. The result is read again and
+    checked: the same moves, bit for bit, and the tolerance written where it was meant to be.
+
+    Raises
+    ------
+    InputError
+        Not a LinuxCNC G-code program.
+    CorrectionError
+        The text read again is not the program with those tolerances (a defect of ilcnc).
+    """
+    from ilcnc.errors import CorrectionError, InputError
+    from ilcnc.program.insert import reread
+    from ilcnc.vcnc.plan import planned_duration_s, profile_moves
+
+    if program.dialect != "linuxcnc":
+        raise InputError(program.path, None, f"a {program.dialect} program: the tighter tolerance is written as"
+                                             " LinuxCNC's G64 P; insert the blocks by hand")
+    settings = {s.line for s in path_settings(program)}
+    raw = program.text.split("\n")
+    eol = "\r" if raw and raw[0].endswith("\r") else ""
+    before: dict[int, str] = {}
+    after: dict[int, str] = {}
+    done: list[TighterRange] = []
+    skipped: list[str] = []
+    for r in tightening.ranges:
+        own = sorted(ln for ln in settings if r.first_line <= ln <= r.last_line)
+        if own:
+            skipped.append(f"lines {r.lines}: line {own[0]} sets the program's own path control")
+            continue
+        # ASCII only ("um"): the program's other bytes are written back as they were read
+        before[r.first_line] = (f"{r.before} ({TIGHTER_MARKER}: corners rounded within"
+                                f" {tightening.tolerance_mm * 1e3:.4g} um)")
+        after[r.last_line] = f"{r.after} ({TIGHTER_MARKER}: the program's own path control again)"
+        done.append(r)
+    out: list[str] = []
+    for ln, line in enumerate(raw, start=1):
+        if ln in before:
+            out.append(before[ln] + eol)
+        out.append(line)
+        if ln in after:
+            out.append(after[ln] + eol)
+    text = "\n".join(out)
+    again = reread(program, text)
+    mv, nv = program.moves, again.moves
+    same = len(nv) == len(mv) and np.array_equal(nv.kind, mv.kind) and np.array_equal(nv.start_mm, mv.start_mm) \
+        and np.array_equal(nv.end_mm, mv.end_mm) and np.array_equal(nv.feed_mm_min, mv.feed_mm_min, equal_nan=True)
+    if not same:
+        raise CorrectionError(program.path, None, "the program with the tighter tolerance re-reads to other moves")
+    # the re-read lines: each original line moves down by the lines inserted before it
+    shift = np.zeros(len(raw) + 2, dtype=np.int64)
+    for ln in before:
+        shift[ln:] += 1
+    for ln in after:
+        shift[ln + 1:] += 1
+    inside = np.zeros(len(mv), dtype=np.bool_)
+    for r in done:
+        inside |= (mv.line >= r.first_line) & (mv.line <= r.last_line) & (mv.kind != MOVE_RAPID)
+    eff = profile_moves(program, profile).blend_tol_mm
+    want_in = np.where(np.isnan(eff) | (eff > tightening.tolerance_mm), tightening.tolerance_mm, mv.blend_tol_mm)
+    ok_lines = np.array_equal(nv.line, mv.line + shift[mv.line])
+    ok_in = np.array_equal(nv.blend_tol_mm[inside], want_in[inside], equal_nan=True)
+    kept = ~inside & ~np.isnan(mv.blend_tol_mm)
+    restored = ~inside & np.isnan(mv.blend_tol_mm)
+    ok_out = np.array_equal(nv.blend_tol_mm[kept], mv.blend_tol_mm[kept]) and bool(np.all(
+        np.isnan(nv.blend_tol_mm[restored]) | (nv.blend_tol_mm[restored] == profile.planner.corner_tolerance_mm)
+        | (profile.planner.path_control != "tolerance")))
+    if not (ok_lines and ok_in and ok_out):
+        raise CorrectionError(program.path, None, "the program with the tighter tolerance re-reads to other path"
+                                                  " control than was meant")
+    return TightenedProgram(text=text, ranges=done, skipped=skipped, cycle_time_s=planned_duration_s(again, profile))
+
+
+
+def write_tightened(program: Program, profile: MachineProfile, report: CornerReport | None, out: Path, *,
+                    drawing: Program | None = None, protect: tuple[Path, ...] = ()) -> TightenedProgram | None:
+    """``simulate --tighter-out``: write ``program`` with the report's tighter tolerance (:func:`tightened_text`).
+
+    ``drawing`` is the program the report was judged against, when not ``program`` itself: its lines must be
+    ``program``'s. Returns None, and writes nothing, when the report suggests no tighter tolerance (its notes
+    say why).
+
+    Raises
+    ------
+    UsageError
+        No report (``--corners 0``), or a report on other lines than ``program``'s.
+    """
+    from ilcnc.errors import UsageError
+    from ilcnc.fileio import write_atomic
+
+    if report is None:
+        raise UsageError("--tighter-out", "needs the corner report: give --corners 1 or more")
+    if drawing is not None and not np.array_equal(drawing.moves.line, program.moves.line):
+        raise UsageError("--tighter-out", f"writes {program.path.name} on the report's lines, which are"
+                                          f" {drawing.path.name}'s: a refined output's lines are not the original's")
+    if report.tightening is None:
+        return None
+    done = tightened_text(program, profile, report.tightening)
+    if done.ranges:
+        write_atomic(out, done.text.encode("latin-1"), protect=(program.path, *protect))
+    return done
