@@ -308,6 +308,10 @@ def corner_report(program: Program, profile: MachineProfile, vertices: VertexMax
                                 rounding_mm=max(c.rounding_mm for c in cs), rounding_after_mm=float(after.max())))
     rep.tightening = Tightening(tolerance_mm=target, word=word, ranges=out, moves=cost.moves,
                                 cycle_before_s=cost.cycle_before_s, cycle_after_s=cost.cycle_after_s)
+    if program.dialect in ("grbl", "fanuc"):
+        rep.notes.append(f"G64 P is LinuxCNC's word: a {program.dialect} control sets its corner tolerance in its"
+                         " settings, not per line (grbl: $11 junction deviation); the planned cost assumes a control that"
+                         " rounds those corners within it")
     return rep
 
 
