@@ -105,7 +105,8 @@ def setting_text(program: Program, profile: MachineProfile, c: CornerError, *, s
     if math.isnan(c.tolerance_mm):
         return "no blend" if short else "no blend (next to a rapid or at the path's end)"
     if c.tolerance_mm == 0.0:
-        how = "cycle 32 T0" if _klartext(program) and c.set_by_program else str(c.mode)
+        how = ("cycle 32 T0" if _klartext(program) else str(c.mode)) if c.set_by_program else \
+            f"the profile's planner.path_control {profile.planner.path_control}"
         return how if short else f"an exact stop ({how})"
     word = f"cycle 32 T{length_word(c.tolerance_mm, program.units)}" if _klartext(program) else \
         _set_word(program, c.tolerance_mm)
