@@ -176,6 +176,12 @@ _CUTTING_BELOW_Z_HELP = ("Stock top, mm in program coordinates: feed moves entir
                          " program cuts below it).")
 
 
+_CORNERS_HELP = ("List the N cutting corners with the largest error, each split into the planner's rounding"
+                 " (within the program's G64 P / cycle 32 or the profile's tolerance) and the drives' lag; 0: none.")
+_TARGET_UM_HELP = ("With --corners: the rounding (µm) a tighter G64 P / cycle 32 should bound the corners that are"
+                   " mostly rounding to (default: half their tolerance); its cycle time is planned.")
+
+
 @app.command()
 def simulate(
     program: Annotated[Path, typer.Argument(help="Part program to run on the virtual CNC.")],
@@ -202,6 +208,13 @@ def simulate(
     log_columns: Annotated[str | None, typer.Option("--log-columns", help="With --compare: " + _LOG_COLUMNS_HELP)] = None,
     log_offset: Annotated[str | None, typer.Option("--log-offset", help="With --compare: " + _LOG_OFFSET_HELP)] = None,
     cutting_below_z: Annotated[float | None, typer.Option("--cutting-below-z", help=_CUTTING_BELOW_Z_HELP)] = None,
+    corners: Annotated[int, typer.Option("--corners", min=0, max=100, help=_CORNERS_HELP)] = 5,
+    target_um: Annotated[float | None, typer.Option("--target-um", help=_TARGET_UM_HELP)] = None,
+    tighter_out: Annotated[
+        Path | None, typer.Option("--tighter-out", help="Write PROGRAM with the suggested G64 P before those corners'"
+                                  " lines and its own path control after them (LinuxCNC G-code; lines marked"
+                                  " '(ilcnc tighter ...)').")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     debug: DebugOption = False,
 ) -> None:
@@ -211,16 +224,19 @@ def simulate(
     from ilcnc.vcnc import simulate as sim_mod
 
     if compare is not None:
-        bad = [o for o, v in (("--log-out", log_out), ("--against", against), ("--schedule", schedule)) if v is not None]
+        bad = [o for o, v in (("--log-out", log_out), ("--against", against), ("--schedule", schedule),
+                              ("--tighter-out", tighter_out)) if v is not None]
         if bad:
             _fail(UsageError("--compare", f"judges the virtual CNC on PROGRAM as it is: it does not go with {bad[0]}"))
         _compare(program, profile, compare, log_format, log_units, log_columns, _parse_offset(log_offset), as_json)
         return
     try:
+        _finite("--target-um", target_um, lo=0.0, open_lo=True, hi=10000.0, unit="µm")
         prof = load_profile(profile).with_cutting_top(cutting_below_z)
         prog = read_program(program, default_units=prof.machine.units)
         orig = read_program(against, default_units=prof.machine.units) if against is not None else None
         console = _console()
+        vm = _vertices(orig or prog, corners)
         gains = None
         if schedule is not None:
             from ilcnc.vcnc.schedule import read_schedule
@@ -230,22 +246,64 @@ def simulate(
                                                  f" ({', '.join(prof.axes)})")
             gains = {schedule_axis: read_schedule(schedule)}
         if gains is not None:
-            result = sim_mod.simulate_program(prog, prof, against=orig, gain_schedule=gains)
+            result = sim_mod.simulate_program(prog, prof, against=orig, gain_schedule=gains, vertices=vm)
         elif as_json:
-            result = _simulate(prog, prof, orig, log_out is not None)
+            result = _simulate(prog, prof, orig, log_out is not None, vertices=vm)
         else:
-            result = _simulate_with_progress(prog, prof, orig, console, log_out is not None)
+            result = _simulate_with_progress(prog, prof, orig, console, log_out is not None, vertices=vm)
         if log_out is not None:
             from ilcnc.axislog.log import write_axis_log
 
             protect = (program, profile) + ((against,) if against is not None else ())
             write_axis_log(log_out, result.axis_log(), protect=protect)
+        rep = None
+        if vm is not None:
+            from ilcnc.shop.corners import corner_report
+
+            rep = corner_report(orig or prog, prof, vm, top=corners, target_um=target_um,
+                                cycle_time_s=None if orig is not None else result.cycle_time_s)
+        if tighter_out is not None:
+            from ilcnc.shop.corners import write_tightened
+
+            written = write_tightened(prog, prof, rep, tighter_out, drawing=orig,
+                                      protect=(profile,) + ((against,) if against is not None else ()))
+            rep.add_written(tighter_out, written)
     except IlcncError as exc:
         _fail(exc)
     if as_json:
-        typer.echo(json.dumps(result.to_json(prog)))
+        typer.echo(json.dumps(result.to_json(prog) | ({"corners": rep.to_json()} if rep is not None else {})))
         return
     _print_simulation(result, prog, console, log_out)
+    _print_corners(rep, console)
+
+
+def _vertices(drawing, corners: int):
+    """What collects the error near each end point of ``drawing`` for ``--corners`` (None: not asked)."""
+    if corners <= 0:
+        return None
+    from ilcnc.vcnc.rounding import VertexMax
+
+    return VertexMax.empty(len(drawing.moves))
+
+
+def _print_corners(rep, console) -> None:
+    """The corner report (:mod:`ilcnc.shop.corners`) under a run's figures."""
+    if rep is None:
+        return
+    if rep.judged:
+        console.print(rep.judged, markup=False)
+    if rep.corners:
+        t = _table("worst cutting corners: the planner's rounding and the rest (µm)")
+        for col in ("lines", "max at", "max", "rounding", "rest", "tolerance"):
+            t.add_column(col, justify="left" if col == "tolerance" else "right", overflow="fold")
+        for row in rep.rows():
+            t.add_row(*row)
+        console.print(t)
+    console.print(rep.summary(), markup=False)
+    if rep.tightening is not None:
+        console.print(f"tighter: {rep.tightening.text()}", markup=False)
+    for n in rep.notes:
+        console.print(n, markup=False)
 
 
 def _check_log_options(log_format: str, log_units: str, log_columns: str | None = None) -> None:
@@ -310,15 +368,15 @@ def _compare(program: Path, profile: Path, log_path: Path, log_format: str, log_
     _console().print(t)
 
 
-def _simulate(prog, prof, orig, samples: bool, progress=None):
+def _simulate(prog, prof, orig, samples: bool, progress=None, vertices=None):
     """A run of the virtual CNC: every sample when they are written (``samples``), else only its figures
     (chunk by chunk where the profile allows: bounded memory, :mod:`ilcnc.vcnc.stream`)."""
     from ilcnc.vcnc.run import simulate_figures
     from ilcnc.vcnc.simulate import simulate_program
 
     if samples:
-        return simulate_program(prog, prof, against=orig, progress=progress)
-    return simulate_figures(prog, prof, against=orig, progress=progress)
+        return simulate_program(prog, prof, against=orig, progress=progress, vertices=vertices)
+    return simulate_figures(prog, prof, against=orig, progress=progress, vertices=vertices)
 
 
 def _compile_column():
@@ -338,10 +396,10 @@ def _compile_column():
     return CompileColumn()
 
 
-def _simulate_with_progress(prog, prof, orig, console, samples: bool):
+def _simulate_with_progress(prog, prof, orig, console, samples: bool, vertices=None):
     """Run the virtual CNC with a progress bar over its stages (shown on a terminal only)."""
     if not console.is_terminal:  # a live display off a terminal leaves a blank line before any error or table
-        return _simulate(prog, prof, orig, samples)
+        return _simulate(prog, prof, orig, samples, vertices=vertices)
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     stages = ("plan", "drives", "errors", "contour")
@@ -353,7 +411,7 @@ def _simulate_with_progress(prog, prof, orig, console, samples: bool):
         def advance(stage: str) -> None:
             bar.update(task, completed=stages.index(stage), description=stage)
 
-        result = _simulate(prog, prof, orig, samples, progress=advance)
+        result = _simulate(prog, prof, orig, samples, progress=advance, vertices=vertices)
         bar.update(task, completed=len(stages))
     return result
 
@@ -432,6 +490,9 @@ def learn(
         bool, typer.Option("--new-profile", help="Continue a --state run with another profile than it was made with:"
                            " a new branch from its best iteration (refused by default; docs/learning.md).")
     ] = False,
+    corners: Annotated[int, typer.Option("--corners", min=0, max=100, help=_CORNERS_HELP + " Virtual learning: one"
+                                         " more run of the output, judged against the original.")] = 5,
+    target_um: Annotated[float | None, typer.Option("--target-um", help=_TARGET_UM_HELP)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     debug: DebugOption = False,
 ) -> None:
@@ -459,6 +520,7 @@ def learn(
     try:
         _finite("--log-period", log_period, lo=0.0, open_lo=True, hi=1.0, unit="s")  # a sample period: µs to ms
         _finite("--points-reach", points_reach, lo=0.0, open_lo=True, unit="mm")
+        _finite("--target-um", target_um, lo=0.0, open_lo=True, hi=10000.0, unit="µm")
     except UsageError as exc:
         _fail(exc)
     req = LearnRequest(program, profile, out, iterations, log, points, state, report, stamp, log_format, log_units,
@@ -483,10 +545,21 @@ def learn(
         except IlcncError as exc:
             _fail(exc)
         outcome.report_files.extend(done.files)
+    rep = None
+    if corners > 0 and outcome.mode == "virtual" and outcome.output is not None:
+        try:  # the output's worst corners: rounding and lag (ilcnc.shop.corners)
+            from ilcnc.profile.load import load_profile
+            from ilcnc.shop.corners import learned_corner_report
+
+            prof = load_profile(profile).with_cutting_top(cutting_below_z)
+            rep = learned_corner_report(outcome.state_dir, outcome.output, prof, top=corners, target_um=target_um)
+        except IlcncError as exc:
+            _fail(exc)
     if as_json:
-        typer.echo(json.dumps(outcome.to_json()))
+        typer.echo(json.dumps(outcome.to_json() | ({"corners": rep.to_json()} if rep is not None else {})))
         return
     _print_learning(outcome, console)
+    _print_corners(rep, console)
 
 
 @app.command()

@@ -115,3 +115,14 @@ class PathMode(StrEnum):
     EXACT_PATH = "G61"  #: stop at every corner
     BOUNDED = "G64 P"  #: blend within the P tolerance
     UNBOUNDED = "G64"  #: blend as fast as the axes allow (no P, or P0)
+
+    @classmethod
+    def of_tolerance(cls, tol_mm: float) -> PathMode:
+        """The mode of a move's ``MoveTable.blend_tol_mm`` (NaN unset, -1 G61.1, 0 G61, +inf G64, else G64 P)."""
+        if tol_mm != tol_mm:  # NaN
+            return cls.UNSET
+        if tol_mm < 0:
+            return cls.EXACT_STOP
+        if tol_mm == 0:
+            return cls.EXACT_PATH
+        return cls.UNBOUNDED if tol_mm == float("inf") else cls.BOUNDED

@@ -11,7 +11,7 @@ programs (upper case, the words of G-code and Klartext), ``CENTER_LETTERS`` for 
 
 from __future__ import annotations
 
-__all__ = ["AXIS_LETTERS", "AXIS_NAMES", "CENTER_LETTERS", "LENGTH_UNITS", "MM_PER_INCH"]
+__all__ = ["AXIS_LETTERS", "AXIS_NAMES", "CENTER_LETTERS", "LENGTH_UNITS", "MM_PER_INCH", "length_word"]
 
 #: Millimetres per inch (exact, by definition).
 MM_PER_INCH = 25.4
@@ -23,3 +23,11 @@ AXIS_NAMES: tuple[str, ...] = ("x", "y", "z")
 AXIS_LETTERS = "XYZ"
 #: The arc-centre words belonging to X, Y and Z.
 CENTER_LETTERS = "IJK"
+
+
+def length_word(v_mm: float, units: str) -> str:
+    """A length for a program word (``G64 P``, cycle 32 ``T``) in the program's ``units``: 4 decimals of mm, 5 of
+    inch, trailing zeros dropped (0.0125 mm is ``0.0125``; in inch ``0.00049``)."""
+    if units == "inch":
+        return f"{v_mm / MM_PER_INCH:.5f}".rstrip("0").rstrip(".")
+    return f"{v_mm:.4f}".rstrip("0").rstrip(".")

@@ -285,14 +285,14 @@ def test_g64_without_p_blends_at_least_as_much_as_any_p() -> None:
 
 def test_programmed_blends_are_bounded_by_a_quarter_of_the_shorter_move(monkeypatch: pytest.MonkeyPatch) -> None:
     # LinuxCNC's own bound (tcFindBlendTolerance): 0.5 mm legs blend by at most 0.125 mm, with or without P
-    from ilcnc.vcnc import plan
+    from ilcnc.vcnc import plan_corners
     text = "G21 G90\nG0 X0 Y0 Z0\n{mode}\nG1 X0.5 F3000\nY0.5\nM2\n"
     free = plan_moves(_prog(text.format(mode="G64")).moves, _limits(), period_s=0.001)
     assert 0.5 * 0.125 < _corner_deviation(free.pos_mm, x=0.5) <= 0.125 * (1 + 1e-6)
     for mode in ("G64 P0.125", "G64 P3"):
         _assert_same_reference(plan_moves(_prog(text.format(mode=mode)).moves, _limits(), period_s=0.001), free)
     # the bound is what keeps it there: without it the corner is cut by more
-    monkeypatch.setattr(plan, "_BLEND_LENGTH_FRACTION", np.inf)
+    monkeypatch.setattr(plan_corners, "BLEND_LENGTH_FRACTION", np.inf)  # the junction rule's (plan_corners)
     unbounded = plan_moves(_prog(text.format(mode="G64")).moves, _limits(), period_s=0.001)
     assert _corner_deviation(unbounded.pos_mm, x=0.5) > 0.125
 

@@ -89,7 +89,10 @@ def test_simulate_command_writes_log_and_json(tmp_path: Path) -> None:
              "--log-out", str(out), "--json")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
-    assert set(summary) == {"program", "samples", "cycle_time_s", "contour_error_mm", "air_error_mm", "cutting_rule", "worst"}
+    assert set(summary) == {"program", "samples", "cycle_time_s", "contour_error_mm", "air_error_mm", "cutting_rule", "worst",
+                            "corners"}
+    # the worst corner (ilcnc.shop.corners) is the run's cutting max, taken over the same samples
+    assert summary["corners"]["corners"][0]["max_mm"] == summary["contour_error_mm"]["max"]
     assert summary["samples"] == len(out.read_text().splitlines()) - 1
     assert 0 < summary["contour_error_mm"]["rms"] <= summary["contour_error_mm"]["max"] < 0.1
     assert summary["worst"]["line"] > 0

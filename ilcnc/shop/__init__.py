@@ -10,6 +10,10 @@ from ilcnc._lazy import lazy_exports
 _EXPORTS: dict[str, tuple[str, ...]] = {
     'batch': ('BatchJob', 'PartResult', 'ReturnedPart', 'ShippedPart', 'folder_programs', 'jobs_from_path',
               'learn_shipped', 'retried', 'run_batch', 'ship_part', 'summary_csv', 'write_returned'),
+    'corners': (
+        'CornerReport', 'DEFAULT_CORNERS', 'ROUNDING_SHARE', 'TIGHTER_MARKER', 'TightenedProgram', 'TighterRange',
+        'Tightening', 'corner_report', 'learned_corner_report', 'setting_text', 'tightened_text', 'write_tightened'
+    ),
     'corrections': ('read_corrections', 'write_corrections'),
     'diff': (
         'ChangedLine', 'DiffInserted', 'ProgramDiff', 'WORD_KINDS', 'WordChange', 'diff_files', 'diff_programs',

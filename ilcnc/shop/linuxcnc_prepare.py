@@ -11,7 +11,6 @@ record the run and learn from its log.
 
 from __future__ import annotations
 
-import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -31,10 +30,10 @@ from ilcnc.program.model import MOVE_RAPID, Program
 from ilcnc.shop.inspect import corner_rounding_warnings
 from ilcnc.shop.linuxcnc_config import read_ini_file
 from ilcnc.shop.linuxcnc_profile import joints_of_axes, startup_path_control
-from ilcnc.units import AXIS_NAMES, MM_PER_INCH
+from ilcnc.units import AXIS_NAMES, MM_PER_INCH, length_word
 
-__all__ = ["DEFAULT_SAMPLER_DEPTH", "PathEdit", "PathRange", "PathSetting", "Preparation", "path_ranges", "path_settings",
-           "prepare_run", "sampler_hal"]
+__all__ = ["DEFAULT_SAMPLER_DEPTH", "PathEdit", "PathRange", "PathSetting", "Preparation", "path_ranges",
+           "path_settings", "prepare_run", "sampler_hal"]
 
 #: Sampler FIFO depth: 100 s at 1 kHz, 6.4 MB of shared memory (docs/linuxcnc.md section 2).
 DEFAULT_SAMPLER_DEPTH = 100000
@@ -108,7 +107,7 @@ class PathRange:
     def text(self, units: str) -> str:
         what = _MODE_TEXT[self.mode]
         if self.mode is PathMode.BOUNDED and self.tolerance_mm is not None:
-            what = f"G64 P{_in(self.tolerance_mm, units)}: blend within {self.tolerance_mm:g} mm"
+            what = f"G64 P{length_word(self.tolerance_mm, units)}: blend within {self.tolerance_mm:g} mm"
         return f"lines {self.first_line}-{self.last_line}: {self.moves} feed moves, {what}"
 
 
@@ -168,22 +167,6 @@ class Preparation:
         return "\n".join(out) + "\n" + self.hal + f"record: {self.record}\nlearn:  {self.learn}\n"
 
 
-def _in(v_mm: float, units: str) -> str:
-    """A length for a program word in the program's units (4 decimals of mm, 5 of inch)."""
-    v = v_mm / MM_PER_INCH if units == "inch" else v_mm
-    return f"{v:.5f}".rstrip("0").rstrip(".") if units == "inch" else f"{v:.4f}".rstrip("0").rstrip(".")
-
-
-def _mode_of(tol: float) -> PathMode:
-    if math.isnan(tol):
-        return PathMode.UNSET
-    if tol < 0:
-        return PathMode.EXACT_STOP
-    if tol == 0:
-        return PathMode.EXACT_PATH
-    return PathMode.UNBOUNDED if math.isinf(tol) else PathMode.BOUNDED
-
-
 def path_ranges(program: Program) -> list[PathRange]:
     """The feed moves grouped into runs of one path control (mode and tolerance), in program order."""
     mv = program.moves
@@ -191,7 +174,7 @@ def path_ranges(program: Program) -> list[PathRange]:
     out: list[PathRange] = []
     for i in idx:
         tol = float(mv.blend_tol_mm[i])
-        mode = _mode_of(tol)
+        mode = PathMode.of_tolerance(tol)
         t = tol if mode is PathMode.BOUNDED else None
         line = int(mv.line[i])
         last = out[-1] if out else None
@@ -315,7 +298,7 @@ def _changes(program: Program, ranges: list[PathRange], settings: list[PathSetti
              default_mode: str) -> list[PathEdit]:
     """The edits the program needs before its first run (empty: run it as it is)."""
     units = program.units
-    word = f"G64 P{_in(tol_mm, units)} Q0"
+    word = f"G64 P{length_word(tol_mm, units)} Q0"
     out: list[PathEdit] = []
     unset = [r for r in ranges if r.mode is PathMode.UNSET]
     if unset and default_mode in ("g64", "tolerance"):

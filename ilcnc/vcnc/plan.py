@@ -122,12 +122,12 @@ from ilcnc.program.model import (
     MoveTable,
 )
 from ilcnc.vcnc.plan_base import EPS_MM, PlanLimits, check_run_length, move_directions, nominal_speed_mm_s
-from ilcnc.vcnc.plan_corners import junction_speeds, rounding_tables
+from ilcnc.vcnc.plan_corners import junction_speeds, junction_tolerances, rounding_tables
 from ilcnc.vcnc.plan_kernels import BLOCK_SAMPLES, arc_table, group_kernel, group_range, group_state
 
 __all__ = [
     "Reference", "ReferenceChunk", "check_limits", "corner_zones_mm", "plan_chunks", "plan_moves", "plan_program",
-    "planned_duration_s", "planned_move_times_s"
+    "planned_duration_s", "planned_move_times_s", "profile_moves", "vertex_tolerances_mm"
 ]
 
 _EPS = EPS_MM
@@ -141,9 +141,6 @@ _FD_NOISE = 1e-5
 _SLACK_ROWS = 65536
 #: Relative slack on the number of interpolator ticks (float noise of a sum of millions of durations).
 _TICK_SLACK = 1e-9
-#: Largest corner tolerance a program can set (G64, G64 P), as a fraction of the shorter adjoining move:
-#: LinuxCNC's own bound (``tcFindBlendTolerance``, tolerance_ratio 0.25).
-_BLEND_LENGTH_FRACTION = 0.25
 #: A junction whose turn alone would round the path by at most this fraction of its tolerance is a point on a
 #: line, not a corner (:func:`_corner_limits`).
 _OWN_TURN = 0.01
@@ -230,7 +227,7 @@ def plan_program(program: object, profile: MachineProfile, *, mode: str | None =
     (``corner_tolerance_mm``) or the mode of ``G64`` without P, ``G61``, ``G61.1`` as if programmed.
     """
     return plan_moves(
-        _profile_moves(program, profile),
+        profile_moves(program, profile),
         PlanLimits.from_profile(profile),
         period_s=profile.machine.servo_period_s,
         mode=mode or profile.planner.profile,
@@ -408,7 +405,7 @@ def plan_chunks(program: object, profile: MachineProfile, *, chunk_samples: int 
 def _profile_pieces(program: object, profile: MachineProfile, chunk: int, mode: str | None
                     ) -> tuple[MoveTable, Iterator[tuple[NDArray[np.float64], NDArray[np.int32]]]]:
     """The moves :func:`plan_chunks` plans and the pieces (positions, moves) of their reference, in order."""
-    moves = _profile_moves(program, profile)
+    moves = profile_moves(program, profile)
     mode = mode or profile.planner.profile
     if mode not in PLANNER_PROFILES:
         raise ValueError(f"unknown planner profile {mode!r}")
@@ -449,7 +446,7 @@ def _chunk(moves: MoveTable, first: int, period_s: float, pos: NDArray[np.float6
                           np.where(on, moves.line[safe], 0).astype(np.int32))
 
 
-def _profile_moves(program: object, profile: MachineProfile) -> MoveTable:
+def profile_moves(program: object, profile: MachineProfile) -> MoveTable:
     """The program's moves with the profile's ``planner.path_control`` where the program sets none (refused
     first when its motion would take longer than a virtual run may: :func:`check_run_length`)."""
     moves = program.moves  # type: ignore[attr-defined]
@@ -472,7 +469,7 @@ def corner_zones_mm(program: object, profile: MachineProfile) -> tuple[NDArray[n
     speeds where a limit was hit can still move zones: :mod:`ilcnc.learning.refine` checks the refined plan.
     (0, 0) for every move under ``planner.profile: linuxcnc``, which has no such zones.
     """
-    moves = _profile_moves(program, profile)
+    moves = profile_moves(program, profile)
     m = len(moves)
     z_in, z_out = np.zeros(m), np.zeros(m)
     if m == 0 or profile.planner.profile == "linuxcnc":
@@ -484,6 +481,37 @@ def corner_zones_mm(program: object, profile: MachineProfile) -> tuple[NDArray[n
     for g in setups:
         _v_in, _v_out, z_in[g.idx], z_out[g.idx] = _zones(g.v, g.vj, g.span_s)
     return z_in, z_out
+
+
+def vertex_tolerances_mm(program: object, profile: MachineProfile) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The corner tolerance the planner rounds each end point of the program's moves within, mm, (M + 1,).
+
+    Entry ``e`` is the end of move ``e - 1`` (the start of move ``e``): the junction rule of the plan
+    (:func:`ilcnc.vcnc.plan_corners.junction_tolerances` on the collinear chains), 0 where the axes stop, NaN where
+    two moves of one group do not meet (a group's ends, zero-length moves). The second array is the same without
+    LinuxCNC's quarter-move bound on a programmed tolerance.
+    """
+    moves = profile_moves(program, profile)
+    m = len(moves)
+    tol, free = np.full(m + 1, np.nan), np.full(m + 1, np.nan)
+    length = move_lengths_mm(moves)
+    hold_s = _stand_still_s(moves, length)
+    active = (length > _EPS) | (hold_s > 0.0)
+    geo = _Geometry(*move_directions(moves), arc_sweep_rad(moves))
+    default = profile.planner.corner_tolerance_mm
+    for g0, g1 in _groups(moves.kind, active):
+        idx = np.arange(g0, g1)
+        idx = idx[active[idx]]
+        if idx.size < 2:
+            continue
+        hold = hold_s[idx]
+        seg_len = np.where(hold > 0.0, np.inf, length[idx])
+        before, after = _chain_lengths(seg_len, _straight_joins(moves, geo, idx, hold))
+        t, stop = junction_tolerances(moves.blend_tol_mm[idx], default, seg_len, before, after)
+        t_free, _stop = junction_tolerances(moves.blend_tol_mm[idx], default, np.full(idx.size, np.inf))
+        tol[idx[:-1] + 1] = np.where(stop, 0.0, t)
+        free[idx[:-1] + 1] = np.where(stop, 0.0, t_free)
+    return tol, free
 
 
 def _group_setups(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corner_tolerance_mm: float,
@@ -792,47 +820,6 @@ def _chain_lengths(length: NDArray[np.float64], join: NDArray[np.bool_]
     return total[chain[:-1]], total[chain[1:]]
 
 
-def _junction_tolerances(blend_tol: NDArray[np.float64], default_tol_mm: float, length: NDArray[np.float64],
-                         before_len: NDArray[np.float64] | None = None, after_len: NDArray[np.float64] | None = None,
-                         ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Corner tolerance of each junction of a group from the path control of its moves (module docstring,
-    "Path control").
-
-    Parameters
-    ----------
-    blend_tol : ndarray (n,)
-        ``MoveTable.blend_tol_mm`` of the group's moves, mm (NaN: no program setting).
-    default_tol_mm : float
-        The profile's corner tolerance, mm, for moves without a program setting.
-    length : ndarray (n,)
-        Their lengths, mm (inf for a move that bounds no tolerance).
-    before_len, after_len : ndarray (n - 1,), optional
-        Lengths of the collinear chains before and after each junction (:func:`_chain_lengths`), mm;
-        default the moves' own.
-
-    Returns
-    -------
-    tol_j : ndarray (n - 1,)
-        Largest deviation at the corner between move i and move i + 1, mm (0: stop unless tangent).
-    stop : ndarray (n - 1,) bool
-        Junctions where the axes stop even when the moves are tangent (``G61.1``).
-    """
-    tol = np.where(np.isnan(blend_tol), default_tol_mm, blend_tol)
-    t_a, t_b = tol[:-1], tol[1:]
-    # the move before the corner decides blend or stop; when both blend, the smaller tolerance
-    # (an exact-mode move after the corner sets none), as LinuxCNC's tcFindBlendTolerance
-    tol_j = np.where(t_a > 0.0, np.where(t_b > 0.0, np.minimum(t_a, t_b), t_a), 0.0)
-    # a tolerance the program sets (G64, G64 P) is also bounded as LinuxCNC bounds it: a quarter of the
-    # shorter adjoining move (the profile's tolerance is used as it is)
-    programmed = ~np.isnan(blend_tol[:-1])
-    if programmed.any():
-        a = length[:-1] if before_len is None else before_len
-        b = length[1:] if after_len is None else after_len
-        quarter = _BLEND_LENGTH_FRACTION * np.minimum(a, b)
-        tol_j = np.where(programmed & (tol_j > 0.0), np.minimum(tol_j, quarter), tol_j)
-    return tol_j, t_a < 0.0
-
-
 def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.float64],
                    t_in: NDArray[np.float64], t_out: NDArray[np.float64], limits: PlanLimits, default_tol_mm: float,
                    lengths: tuple[int, ...], period_s: float, v_nom: NDArray[np.float64],
@@ -902,7 +889,7 @@ def _corner_limits(moves: MoveTable, idx: NDArray[np.int64], length: NDArray[np.
     # lengths that bound a corner's tolerance and tell a curve from a corner are those of the collinear
     # chains meeting there, not of the pieces
     before_len, after_len = _chain_lengths(seg_len, join)
-    tol_j, stop = _junction_tolerances(blend_g, default_tol_mm, seg_len, before_len, after_len)
+    tol_j, stop = junction_tolerances(blend_g, default_tol_mm, seg_len, before_len, after_len)
     vj = np.full(n - 1, np.inf)
     if t1 > 0:
         # the filters' rounding and acceleration at each junction, from the direction changes within their span

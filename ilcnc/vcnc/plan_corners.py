@@ -40,7 +40,11 @@ from numpy.typing import NDArray
 
 from ilcnc._jit import njit
 
-__all__ = ["RoundingTables", "junction_speeds", "rounding_tables"]
+__all__ = ["BLEND_LENGTH_FRACTION", "RoundingTables", "junction_speeds", "junction_tolerances", "rounding_tables"]
+
+#: Largest corner tolerance a program can set (G64, G64 P), as a fraction of the shorter adjoining move:
+#: LinuxCNC's own bound (``tcFindBlendTolerance``, tolerance_ratio 0.25).
+BLEND_LENGTH_FRACTION = 0.25
 
 #: Bisection steps for a junction's speed: 2⁻⁴⁰ of the moves' own speed.
 _BISECTION_STEPS = 40
@@ -202,3 +206,44 @@ def junction_speeds(s_mm: NDArray[np.float64], du: NDArray[np.float64], tol_mm: 
                             np.ascontiguousarray(v_cap_mm_s, dtype=np.float64),
                             np.ascontiguousarray(acceleration_mm_s2, dtype=np.float64),
                             np.ascontiguousarray(alone, dtype=np.bool_), g_s, rho, step_s, reach_s)
+
+
+def junction_tolerances(blend_tol: NDArray[np.float64], default_tol_mm: float, length: NDArray[np.float64],
+                        before_len: NDArray[np.float64] | None = None, after_len: NDArray[np.float64] | None = None,
+                        ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Corner tolerance of each junction of a group from the path control of its moves (the module docstring of
+    :mod:`ilcnc.vcnc.plan`, "Path control").
+
+    Parameters
+    ----------
+    blend_tol : ndarray (n,)
+        ``MoveTable.blend_tol_mm`` of the group's moves, mm (NaN: no program setting).
+    default_tol_mm : float
+        The profile's corner tolerance, mm, for moves without a program setting.
+    length : ndarray (n,)
+        Their lengths, mm (inf for a move that bounds no tolerance).
+    before_len, after_len : ndarray (n - 1,), optional
+        Lengths of the collinear chains before and after each junction (:func:`ilcnc.vcnc.plan._chain_lengths`), mm;
+        default the moves' own.
+
+    Returns
+    -------
+    tol_j : ndarray (n - 1,)
+        Largest deviation at the corner between move i and move i + 1, mm (0: stop unless tangent).
+    stop : ndarray (n - 1,) bool
+        Junctions where the axes stop even when the moves are tangent (``G61.1``).
+    """
+    tol = np.where(np.isnan(blend_tol), default_tol_mm, blend_tol)
+    t_a, t_b = tol[:-1], tol[1:]
+    # the move before the corner decides blend or stop; when both blend, the smaller tolerance
+    # (an exact-mode move after the corner sets none), as LinuxCNC's tcFindBlendTolerance
+    tol_j = np.where(t_a > 0.0, np.where(t_b > 0.0, np.minimum(t_a, t_b), t_a), 0.0)
+    # a tolerance the program sets (G64, G64 P) is also bounded as LinuxCNC bounds it: a quarter of the
+    # shorter adjoining move (the profile's tolerance is used as it is)
+    programmed = ~np.isnan(blend_tol[:-1])
+    if programmed.any():
+        a = length[:-1] if before_len is None else before_len
+        b = length[1:] if after_len is None else after_len
+        quarter = BLEND_LENGTH_FRACTION * np.minimum(a, b)
+        tol_j = np.where(programmed & (tol_j > 0.0), np.minimum(tol_j, quarter), tol_j)
+    return tol_j, t_a < 0.0

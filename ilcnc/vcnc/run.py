@@ -48,7 +48,7 @@ class RunFigures(Protocol):
 
 def run_virtual(program: Program, profile: MachineProfile, *, against: Program | None = None, kind: str = "path",
                 keep_samples: bool = False, sources: Any = None, gate_mm: float | None = None,
-                progress: Callable[[str], None] | None = None) -> RunFigures:
+                progress: Callable[[str], None] | None = None, vertices: Any = None) -> RunFigures:
     """Run ``program`` on the virtual CNC of ``profile``.
 
     Parameters
@@ -70,6 +70,8 @@ def run_virtual(program: Program, profile: MachineProfile, *, against: Program |
         ``E(k)`` farther than this is not measured (streamed runs; a whole run's signal is taken later).
     progress : callable, optional
         Called with a stage name.
+    vertices : ilcnc.vcnc.rounding.VertexMax, optional
+        Given: the cutting error near each end point of the judged path is added to it (:mod:`ilcnc.vcnc.rounding`).
     """
     from ilcnc.vcnc.machine_errors import ErrorSources
     from ilcnc.vcnc.simulate import simulate_program
@@ -78,11 +80,13 @@ def run_virtual(program: Program, profile: MachineProfile, *, against: Program |
     if sources is None:
         sources = ErrorSources.from_profile(profile)
     if not keep_samples and stream_unsupported(profile, kind, sources=sources) is None:
-        return simulate_streamed(program, profile, against=against, gate_mm=gate_mm, progress=progress)
-    return simulate_program(program, profile, against=against, progress=progress, sources=sources)
+        return simulate_streamed(program, profile, against=against, gate_mm=gate_mm, progress=progress,
+                                 vertices=vertices)
+    return simulate_program(program, profile, against=against, progress=progress, sources=sources, vertices=vertices)
 
 
 def simulate_figures(program: Program, profile: MachineProfile, *, against: Program | None = None,
-                     progress: Callable[[str], None] | None = None) -> RunFigures:
-    """The figures of a run in the least memory (``ilcnc simulate`` without ``--log-out``, ``ilcnc check``)."""
-    return run_virtual(program, profile, against=against, progress=progress)
+                     progress: Callable[[str], None] | None = None, vertices: Any = None) -> RunFigures:
+    """The figures of a run in the least memory (``ilcnc simulate`` without ``--log-out``, ``ilcnc check``); with
+    ``vertices`` (a :class:`ilcnc.vcnc.rounding.VertexMax`) the error near each end point is added to it."""
+    return run_virtual(program, profile, against=against, progress=progress, vertices=vertices)

@@ -23,7 +23,14 @@ from numpy.typing import NDArray
 
 from ilcnc._jit import njit
 from ilcnc.axislog.log import AxisLog
-from ilcnc.contour.air import MOVE_CUT, MOVE_NOT_FED, CuttingRule, air_above_mm, profile_move_classes
+from ilcnc.contour.air import (
+    MOVE_CUT,
+    MOVE_NOT_FED,
+    CuttingRule,
+    air_above_mm,
+    cutting_samples,
+    profile_move_classes,
+)
 from ilcnc.contour.figures import ErrorFigures
 from ilcnc.errors import InputError
 from ilcnc.profile.sections import MachineProfile
@@ -136,6 +143,7 @@ def simulate_program(
     progress: Callable[[str], None] | None = None,
     sources: ErrorSources | None = None,
     gain_schedule: Mapping[str, tuple[NDArray[np.float64], NDArray[np.float64]]] | None = None,
+    vertices: Any = None,
 ) -> SimulationResult:
     """Run a program on the virtual CNC of a profile.
 
@@ -157,6 +165,9 @@ def simulate_program(
         A position-loop gain schedule of an axis: gain ``kp`` ((m/min)/mm) from each instant ``t_s`` (s) on
         (seed 001's schedule, ``ilcnc tune --method schedule``, :func:`ilcnc.vcnc.schedule.read_schedule`); held per
         servo period over the planned run (see :func:`ilcnc.vcnc.drives.simulate_drives`).
+    vertices : ilcnc.vcnc.rounding.VertexMax, optional
+        Given: the cutting samples' largest error near each end point of the judged path is added to it
+        (:mod:`ilcnc.vcnc.rounding`).
 
     Raises
     ------
@@ -238,6 +249,8 @@ def simulate_program(
     above = air_above_mm(target, rule, classes, resolution_mm=profile.machine.resolution_mm)
     feed = acc.add(on_target, classes, err.dist_mm, foot_z_mm=err.foot_mm[:, 2], above_mm=above)
     stats, worst = acc.result()
+    if vertices is not None:
+        vertices.add(err.dist_mm, err.u, err.seg, cutting_samples(on_target, classes, err.foot_mm[:, 2], above))
     timings["stats"] = time.perf_counter() - t0
     worst_at = None
     if against is not None and worst >= 0:

@@ -114,6 +114,7 @@ def simulate_streamed(
     gate_mm: float | None = None,
     chunk_samples: int = DEFAULT_CHUNK_SAMPLES,
     progress: Callable[[str], None] | None = None,
+    vertices: Any = None,
 ) -> StreamedRun:
     """Run a program on the virtual CNC chunk by chunk; keep the statistics and ``E(k)``.
 
@@ -131,6 +132,8 @@ def simulate_streamed(
         Samples per chunk (rounded down to the planner's block of 1024).
     progress : callable, optional
         Called with ``"plan"`` once at the start.
+    vertices : ilcnc.vcnc.rounding.VertexMax, optional
+        Given: each chunk's cutting samples' largest error near each end point of the judged path is added to it.
 
     Raises
     ------
@@ -139,7 +142,7 @@ def simulate_streamed(
     ValueError
         The profile cannot run chunk by chunk (:func:`stream_unsupported`).
     """
-    from ilcnc.contour.air import air_above_mm, profile_move_classes
+    from ilcnc.contour.air import air_above_mm, cutting_samples, profile_move_classes
     from ilcnc.contour.path import PathGeometry
     from ilcnc.contour.search import contour_error
     from ilcnc.vcnc.drives import DriveStream
@@ -192,6 +195,8 @@ def simulate_streamed(
             j = feed_stats.worst_sample - ch.first_sample
             seg = int(err.seg[j]) if err.seg[j] >= 0 else int(on_target[j])
             worst_at = {"k": int(target.moves.command[seg]), "line": int(target.moves.line[seg])}
+        if vertices is not None:
+            vertices.add(err.dist_mm, err.u, err.seg, cutting_samples(on_target, classes, err.foot_mm[:, 2], above))
         t3 = time.perf_counter()
         sums.add(err, period, on_feed=feed, first_sample=ch.first_sample)
         t4 = time.perf_counter()
