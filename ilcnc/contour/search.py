@@ -108,14 +108,22 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ilcnc._jit import HAVE_NUMBA, njit, set_component
+from ilcnc._jit import HAVE_NUMBA, compiled_for, njit, set_component
 from ilcnc.contour.path import TWO_PI, PathGeometry, WorkBuffers
 
 if HAVE_NUMBA:  # pragma: no cover - exercised by the environment, not by a test
     from ilcnc._jit import intrinsic  # numba's, made when the first kernel runs (start-up: issue 24)
     from ilcnc._jit import numba_types as types
 
-    @intrinsic
+    def _bits_of_python(x: float) -> int:
+        """:func:`_bits_of` as Python (:func:`ilcnc._jit.kernels_for`)."""
+        return int(np.float64(x).view(np.int64))
+
+    def _float_of_python(x: int) -> float:
+        """:func:`_float_of` as Python."""
+        return float(np.int64(x).view(np.float64))
+
+    @intrinsic(_bits_of_python)
     def _bits_of(typingctx, x):
         """The IEEE bits of a float64 as an int64 (``x.view(np.int64)`` of a scalar)."""
         def codegen(context, builder, signature, args):
@@ -123,7 +131,7 @@ if HAVE_NUMBA:  # pragma: no cover - exercised by the environment, not by a test
 
         return types.int64(types.float64), codegen
 
-    @intrinsic
+    @intrinsic(_float_of_python)
     def _float_of(typingctx, x):
         """The float64 whose IEEE bits are the int64 ``x``."""
         def codegen(context, builder, signature, args):
@@ -325,7 +333,7 @@ def contour_error(
     nw = workers if workers is not None else thread_limit()
     nw = max(1, min(int(nw), len(starts)))
     walked = [0] * nw
-    use_kernel = _USE_KERNEL
+    use_kernel = _USE_KERNEL and compiled_for(0)  # in a small run (ilcnc._jit.kernels_for): the numpy path
     if use_kernel:
         tabs = path._kernel_tables()
         bits = max(1, (2 * w).bit_length())

@@ -33,7 +33,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'Reference', 'ReferenceChunk', 'check_limits', 'corner_zones_mm', 'plan_chunks', 'plan_moves', 'plan_program',
         'planned_duration_s', 'planned_move_times_s'
     ),
-    'plan_base': ('EPS_MM', 'MAX_RUN_SAMPLES', 'PlanLimits', 'check_run_length', 'move_directions', 'nominal_speed_mm_s'),
+    'plan_base': ('EPS_MM', 'MAX_RUN_SAMPLES', 'PlanLimits', 'check_run_length', 'move_directions', 'nominal_samples',
+                  'nominal_speed_mm_s'),
     'plan_corners': ('RoundingTables', 'junction_speeds', 'rounding_tables'),
     'plan_kernels': ('BLOCK_SAMPLES', 'arc_table', 'group_kernel', 'group_range', 'group_state'),
     'plan_tp': (

@@ -140,7 +140,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ilcnc._jit import HAVE_NUMBA, njit
+from ilcnc._jit import HAVE_NUMBA, njit, python_kernels
 from ilcnc.errors import ProfileError
 from ilcnc.profile.sections import (
     DriveModel,
@@ -407,7 +407,7 @@ class DriveStream:
         from ilcnc._threads import thread_limit
 
         nw = min(len(jobs), thread_limit())
-        if nw > 1 and r.shape[0] >= _PARALLEL_SAMPLES:
+        if nw > 1 and r.shape[0] >= _PARALLEL_SAMPLES and not python_kernels():  # Python kernels hold the GIL
             with ThreadPoolExecutor(max_workers=nw) as ex:
                 list(ex.map(run, jobs))
         else:
@@ -611,7 +611,7 @@ def simulate_drives(
     from ilcnc._threads import thread_limit  # the one place that decides ilcnc's thread counts
 
     nw = min(len(jobs), thread_limit())
-    if nw > 1 and r.shape[0] >= _PARALLEL_SAMPLES:
+    if nw > 1 and r.shape[0] >= _PARALLEL_SAMPLES and not python_kernels():  # Python kernels hold the GIL
         with ThreadPoolExecutor(max_workers=nw) as ex:
             list(ex.map(run, jobs))
     else:

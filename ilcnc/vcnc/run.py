@@ -71,15 +71,20 @@ def run_virtual(program: Program, profile: MachineProfile, *, against: Program |
     progress : callable, optional
         Called with a stage name.
     """
+    from ilcnc._jit import kernels_for
     from ilcnc.vcnc.machine_errors import ErrorSources
+    from ilcnc.vcnc.plan_base import nominal_samples
     from ilcnc.vcnc.simulate import simulate_program
     from ilcnc.vcnc.stream import simulate_streamed, stream_unsupported
 
     if sources is None:
         sources = ErrorSources.from_profile(profile)
-    if not keep_samples and stream_unsupported(profile, kind, sources=sources) is None:
-        return simulate_streamed(program, profile, against=against, gate_mm=gate_mm, progress=progress)
-    return simulate_program(program, profile, against=against, progress=progress, sources=sources)
+    # a small run's kernels run as Python: importing numba would cost more than the run (ilcnc._jit.kernels_for)
+    moves = getattr(program, "moves", None)
+    with kernels_for(0 if moves is None else nominal_samples(moves, profile)):
+        if not keep_samples and stream_unsupported(profile, kind, sources=sources) is None:
+            return simulate_streamed(program, profile, against=against, gate_mm=gate_mm, progress=progress)
+        return simulate_program(program, profile, against=against, progress=progress, sources=sources)
 
 
 def simulate_figures(program: Program, profile: MachineProfile, *, against: Program | None = None,
