@@ -31,6 +31,7 @@ checks on real programs.
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import sys
 import threading
@@ -39,7 +40,8 @@ from collections.abc import Callable
 from typing import Any
 
 __all__ = ["HAVE_NUMBA", "SMALL_WORK", "LazyKernel", "compile_stats", "compiled_for", "compiling_now", "intrinsic",
-           "kernels_for", "njit", "numba_loaded", "numba_types", "python_kernels", "set_component"]
+           "kernels_for", "njit", "numba_loaded", "numba_types", "python_kernels",
+           "python_when_small", "set_component"]
 
 #: numba can be imported (found without importing it: importing it is what start-up saves).
 HAVE_NUMBA = importlib.util.find_spec("numba") is not None
@@ -53,9 +55,10 @@ _plock = threading.RLock()  # the progress line's
 _pending: list[LazyKernel] = []
 _numba: Any = None
 
-#: Work items (samples, junctions) below which a kernel call runs as Python while numba is not imported yet.
-#: The kernels' Python versions take ~1-20 us per item (measured on samples/own/star.ngc); numba's import
-#: and set-up cost ~0.5 s: at 20,000 items the Python run costs about what loading numba would.
+#: Samples of Python work (:func:`kernels_for`) after which a process imports numba and runs compiled.
+#: A linear-drive run costs ~8-25 us per sample as Python (star.ngc 23 us, spiral.ngc 12 us; the friction
+#: loop ~65 us, counted 3 times); numba's import and set-up cost ~0.45 s: at 20,000 samples the Python run
+#: costs about what loading numba would.
 #: ``ILCNC_SMALL_WORK`` overrides it (0: always compile, as before issue 24).
 SMALL_WORK = 20_000
 
@@ -100,7 +103,7 @@ def compiled_for(work: int) -> bool:
         return True
     if _python_mode():
         with _lock:
-            _python_work += max(int(work), 0)
+            _python_work += max(int(work), 0) * getattr(_local, "weight", 1)
             if _python_work < _small_work():
                 return False
     _load_numba()
@@ -112,23 +115,43 @@ class kernels_for:
     done as Python so far plus ``work`` (the block's estimated items) is below :data:`SMALL_WORK`.
 
     Steps inside that know their size ask :func:`compiled_for`, which may still import numba part way;
-    from then on every kernel runs compiled. ``python`` tells how the block started.
+    from then on every kernel runs compiled. ``weight`` is what an item costs as Python against the
+    cheapest kernels (a sample through the friction loop costs ~3 samples of a linear drive): items count
+    ``weight`` times. ``python`` tells how the block started.
     """
 
-    __slots__ = ("_prev", "python")
+    __slots__ = ("_prev", "python", "weight")
 
-    def __init__(self, work: int) -> None:
-        self.python = HAVE_NUMBA and _numba is None and _python_work + max(int(work), 0) < _small_work()
-        self._prev = False
+    def __init__(self, work: int, weight: int = 1) -> None:
+        self.weight = max(int(weight), 1)
+        self.python = HAVE_NUMBA and _numba is None and _python_work + max(int(work), 0) * self.weight < _small_work()
+        self._prev: tuple[bool, int] = (False, 1)
 
     def __enter__(self) -> kernels_for:
-        self._prev = _python_mode()
+        self._prev = (_python_mode(), getattr(_local, "weight", 1))
         if self.python:
             _local.python = True
+            _local.weight = self.weight
         return self
 
     def __exit__(self, *exc: object) -> None:
-        _local.python = self._prev
+        _local.python, _local.weight = self._prev
+
+
+def python_when_small(estimate: Callable[..., tuple[int, int]]) -> Callable[[Callable[..., Any]], Any]:
+    """Decorator: the function runs in a :func:`kernels_for` block of ``estimate(*args, **kwargs)`` =
+    ``(work, weight)`` (a whole job, e.g. every run of a learning loop, decided once at its start)."""
+
+    def wrap(f: Callable[..., Any]) -> Any:
+        @functools.wraps(f)
+        def run(*args: Any, **kwargs: Any) -> Any:
+            work, weight = estimate(*args, **kwargs)
+            with kernels_for(work, weight):
+                return f(*args, **kwargs)
+
+        return run
+
+    return wrap
 
 
 class LazyKernel:

@@ -205,6 +205,122 @@ def test_inspect_runs_without_numba() -> None:
     assert res.stdout.split() == ["False", "False"]
 
 
+# ---------------------------------------------------------------------------------------------
+# A small job runs its kernels as Python (ilcnc._jit.kernels_for): no numba, the same numbers
+# ---------------------------------------------------------------------------------------------
+
+_STAR = str(ROOT / "samples" / "own" / "star.ngc")
+_MILL = str(ROOT / "configs" / "example-mill.yaml")
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", _STAR, "--profile", _MILL, "--json"],
+    ["check", _STAR, "--profile", _MILL, "--max-error", "0.05"],
+    ["learn", _STAR, "--profile", _MILL, "--iterations", "1", "--force", "--out", "OUT"],
+], ids=["simulate", "check", "learn"])
+def test_a_small_program_command_does_not_import_numba(argv: list[str], tmp_path: Path) -> None:
+    pytest.importorskip("numba")
+    argv = [str(tmp_path / "star.ilc.ngc") if a == "OUT" else a for a in argv]
+    res = _run_python(f"""
+        import sys
+        from typer.testing import CliRunner
+        from ilcnc.cli import app
+        r = CliRunner().invoke(app, {argv!r})
+        assert r.exit_code == 0, r.output
+        print("numba" in sys.modules)
+    """)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split()[-1] == "False"
+
+
+def test_a_big_job_and_a_wide_search_import_numba() -> None:
+    # spiral.ngc: 161k samples, over SMALL_WORK; seed000_corner.ngc: 8,001 samples, but 8,000 one-sample moves
+    # make the contour search's windows ~740 segments wide: the numpy search would cost more than numba
+    pytest.importorskip("numba")
+    for prog, prof in (("samples/third_party/gcode/spiral.ngc", "configs/example-mill.yaml"),
+                       ("samples/own/seed000_corner.ngc", "configs/seed000-paper-corner.yaml")):
+        res = _run_python(f"""
+            import sys
+            from ilcnc.profile.load import load_profile
+            from ilcnc.program import read_program
+            from ilcnc.vcnc.run import run_virtual
+            run_virtual(read_program({prog!r}), load_profile({prof!r}))
+            print("numba" in sys.modules)
+        """)
+        assert res.returncode == 0, res.stderr
+        assert res.stdout.split()[-1] == "True", prog
+
+
+#: (program, profile) run both ways: linear drives streamed, the friction loop, the cross-coupled controller,
+#: a Klartext program on a second-order drive with dead time
+_BOTH_WAYS = [("samples/own/star.ngc", "configs/example-mill.yaml"),
+              ("samples/own/square.ngc", "configs/seed001-duong-p-ff-friction.yaml"),
+              ("samples/own/square.ngc", "configs/seed003-li-cross-coupled.yaml"),
+              ("samples/own/star.h", "configs/seed004-ward-sopdt.yaml")]
+
+
+def test_python_kernels_agree_with_the_compiled_ones_within_ulps() -> None:
+    """Each program run as Python (its kernels' py_func, the plan's, search's and E(k)'s numpy twins), then
+    compiled, in one process: the samples, the contour error, the figures and E(k) agree to a few ulps.
+
+    Tolerance, as tests/test_contour.py's ``_assert_same_error``: the numpy contour search computes the
+    kernel's formulas, not its instructions (LLVM may contract ``a*b + c`` into one FMA, numpy's SIMD
+    sin/cos/atan2 are not libm's); each distance or vector in mm is a chain of at most 16 operations on
+    coordinates of magnitude at most R (the largest coordinate), so the two agree within 16 eps R, and so do
+    the means, RMS and E(k) (weighted means of them). Measured (ulps of R): positions bit for bit; star.h's
+    error vectors within 3.4, its distances within 0.8, its figures within 1e-4; the rest bit for bit.
+    """
+    pytest.importorskip("numba")
+    res = _run_python(f"""
+        import json, sys
+        import numpy as np
+        from ilcnc import _jit
+        from ilcnc.profile.load import load_profile
+        from ilcnc.program import read_program
+        from ilcnc.vcnc.run import run_virtual
+
+        def runs():
+            out = []
+            for prog, prof in {_BOTH_WAYS!r}:
+                p, f = read_program(prog), load_profile(prof)
+                s, w = run_virtual(p, f), run_virtual(p, f, keep_samples=True)
+                out.append(dict(
+                    figures=[s.stats[k] for k in ("max", "mean", "rms")] + [s.air_stats[k] for k in ("max", "mean", "rms")]
+                    + [w.stats[k] for k in ("max", "mean", "rms")] + [s.cycle_time_s, w.cycle_time_s],
+                    n=[s.n_samples, w.n_samples], actual=w.actual_mm, dist=w.error.dist_mm, vec=w.error.vector_mm,
+                    # E(k) where the run went chunk by chunk (the friction and cross-coupled loops run whole)
+                    e=s.signal.e_mm if hasattr(s, "signal") else np.zeros(1),
+                    valid=s.signal.valid if hasattr(s, "signal") else np.zeros(1, bool)))
+            return out
+
+        python = runs()   # ILCNC_SMALL_WORK is huge: every kernel as Python
+        assert "numba" not in sys.modules
+        _jit.compiled_for(0)  # outside a Python block: imports numba
+        assert _jit.numba_loaded()
+        compiled = runs()
+
+        def ulps(a, b, r):  # the largest difference in ulps of r (the run's largest coordinate, mm)
+            a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+            assert a.shape == b.shape and np.array_equal(np.isnan(a), np.isnan(b))
+            ok = np.isfinite(b)
+            return float(np.max(np.abs(a[ok] - b[ok]), initial=0.0) / (r * np.finfo(float).eps))
+
+        report = []
+        for x, y in zip(python, compiled):
+            assert x["n"] == y["n"] and np.array_equal(x["valid"], y["valid"])
+            r = float(np.max(np.abs(y["actual"])))
+            report.append({{"figures": ulps(x["figures"], y["figures"], r), "actual": ulps(x["actual"], y["actual"], r),
+                           "dist": ulps(x["dist"], y["dist"], r), "vector": ulps(x["vec"], y["vec"], r),
+                           "e": ulps(x["e"], y["e"], r)}})
+        print(json.dumps(report))
+    """, ILCNC_SMALL_WORK=str(10**12))
+    assert res.returncode == 0, res.stderr
+    report = json.loads(res.stdout.splitlines()[-1])
+    assert len(report) == len(_BOTH_WAYS)
+    for (prog, prof), r in zip(_BOTH_WAYS, report, strict=True):
+        assert max(r.values()) <= 16.0, (prog, prof, r)
+
+
 def test_kernels_wait_for_their_first_call_then_are_numbas_everywhere() -> None:
     pytest.importorskip("numba")
     res = _run_python("""

@@ -108,7 +108,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ilcnc._jit import HAVE_NUMBA, compiled_for, njit, set_component
+from ilcnc._jit import HAVE_NUMBA, compiled_for, njit, python_kernels, set_component
 from ilcnc.contour.path import TWO_PI, PathGeometry, WorkBuffers
 
 if HAVE_NUMBA:  # pragma: no cover - exercised by the environment, not by a test
@@ -333,7 +333,9 @@ def contour_error(
     nw = workers if workers is not None else thread_limit()
     nw = max(1, min(int(nw), len(starts)))
     walked = [0] * nw
-    use_kernel = _USE_KERNEL and compiled_for(0)  # in a small run (ilcnc._jit.kernels_for): the numpy path
+    # in a small job's Python block (ilcnc._jit.kernels_for) the numpy path, unless its windows are wide: it costs
+    # a pass per candidate segment, a sample with a window of s segments costs s / (2w + 1) samples' work
+    use_kernel = _USE_KERNEL and compiled_for(_extra_window_work(path, p, hint, r, reach, w) if python_kernels() else 0)
     if use_kernel:
         tabs = path._kernel_tables()
         bits = max(1, (2 * w).bit_length())
@@ -361,6 +363,15 @@ def contour_error(
             list(ex.map(work, range(nw)))
     out.walked = int(sum(walked))
     return out
+
+
+def _extra_window_work(path: PathGeometry, p, h, r, reach: tuple[float, NDArray[np.float64]], w: int) -> int:
+    """The numpy search's work beyond one window of ``2w + 1`` segments per sample, in samples (a path of many
+    segments shorter than the reach: seed000_corner.ngc, 8,000 one-sample moves, has windows of ~740)."""
+    if r is None or p.shape[0] == 0:
+        return 0
+    lo, hi, _bits = _ranges(path, p[:, 0], p[:, 1], p[:, 2], h, r, reach, w)
+    return max(0, int(np.sum(hi - lo + 1)) // (2 * w + 1) - p.shape[0])
 
 
 def _ranges(path: PathGeometry, px, py, pz, h, r, reach: tuple[float, NDArray[np.float64]], w: int):
