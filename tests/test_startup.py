@@ -141,7 +141,8 @@ def test_the_command_line_and_the_run_modules_import_neither_numba_nor_scipy_sig
 
 def test_scipy_linalg_leaves_numpys_extras_unloaded_until_used() -> None:
     # what ilcnc does before numba's first kernel and the drive models' expm: scipy.linalg then reads
-    # numpy.f2py and numpy.testing without running them; they run (and work) when first used
+    # numpy.f2py, numpy.testing, numpy.ma and numpy.polynomial without running them; they run (and work) when
+    # first used
     res = _run_python("""
         import sys
         import numpy
@@ -149,13 +150,16 @@ def test_scipy_linalg_leaves_numpys_extras_unloaded_until_used() -> None:
         print(defer_numpy_extras())
         import scipy.linalg
         print("numpy.f2py.rules" in sys.modules, "unittest" in sys.modules)
+        print("numpy.ma.core" in sys.modules, "numpy.polynomial.polynomial" in sys.modules)
         from numpy.testing import assert_array_equal
         assert_array_equal(scipy.linalg.expm(numpy.zeros((2, 2))), numpy.eye(2))
+        assert numpy.ma.masked_array([1, 2], [0, 1]).sum() == 1 and numpy.polynomial.Polynomial([1, 2])(2.0) == 5.0
         print(numpy.f2py.__name__, "numpy.f2py.rules" in sys.modules or hasattr(numpy.f2py, "run_main"),
               "unittest" in sys.modules, defer_numpy_extras())
     """)
     assert res.returncode == 0, res.stderr
-    assert res.stdout.splitlines() == ["['numpy.f2py', 'numpy.testing']", "False False", "numpy.f2py True True []"]
+    assert res.stdout.splitlines() == ["['numpy.f2py', 'numpy.testing', 'numpy.ma', 'numpy.polynomial']", "False False",
+                                       "False False", "numpy.f2py True True []"]
 
 
 def test_one_blas_thread_inside_the_block_and_the_previous_limit_after_it_from_two_threads() -> None:
@@ -249,6 +253,56 @@ def test_a_big_job_and_a_wide_search_import_numba() -> None:
         """)
         assert res.returncode == 0, res.stderr
         assert res.stdout.split()[-1] == "True", prog
+
+
+def test_the_exponential_cache_gives_scipys_numbers_bit_for_bit(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    linalg = pytest.importorskip("scipy.linalg")
+    from ilcnc.profile.load import load_profile
+    from ilcnc.vcnc import discrete
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    folder = lti.expm_cache_dir()
+    assert folder == tmp_path / "ilcnc-expm"
+    # the block matrices of every shipped profile's drives, and random ones
+    mats: list[np.ndarray] = []
+    orig = lti.expm_cached
+    monkeypatch.setattr(lti, "expm_cached", lambda m: (mats.append(np.array(m)), orig(m))[1])
+    for config in CONFIGS:
+        prof = load_profile(config)
+        for ax in prof.axes.values():
+            discrete.discrete_model(ax.drive, prof.machine.servo_period_s)
+    rng = np.random.default_rng(24)
+    mats += [rng.uniform(-50.0, 50.0, (n, n)) * 1e-3 for n in (2, 3, 5)]
+    assert len(mats) > 10 and len(list(folder.iterdir())) >= 3
+    for m in mats:
+        first, again, want = orig(m), orig(m), linalg.expm(m)
+        assert _same(first, want) and _same(again, want)
+    # a damaged file is computed again (and written again)
+    victim = sorted(folder.iterdir())[0]
+    victim.write_bytes(victim.read_bytes()[:-1] + b"x")
+    for m in mats:
+        assert _same(orig(m), linalg.expm(m))
+    # the folder holds at most EXPM_CACHE_MAX files: then nothing more is written, the answers stay right
+    monkeypatch.setattr(lti, "EXPM_CACHE_MAX", len(list(folder.iterdir())))
+    fresh = rng.uniform(-1.0, 1.0, (4, 4))
+    n_files = len(list(folder.iterdir()))
+    assert _same(orig(fresh), linalg.expm(fresh)) and len(list(folder.iterdir())) == n_files
+
+
+def test_a_second_run_on_the_same_drives_imports_no_scipy(tmp_path: Path) -> None:
+    code = f"""
+        import sys
+        from typer.testing import CliRunner
+        from ilcnc.cli import app
+        r = CliRunner().invoke(app, ["simulate", {_STAR!r}, "--profile", {_MILL!r}, "--json"])
+        assert r.exit_code == 0, r.output
+        print("scipy" in sys.modules, "numba" in sys.modules)
+    """
+    first = _run_python(code, NUMBA_CACHE_DIR=str(tmp_path))
+    second = _run_python(code, NUMBA_CACHE_DIR=str(tmp_path))
+    assert first.returncode == 0 and second.returncode == 0, first.stderr + second.stderr
+    assert first.stdout.split() == ["True", "False"]  # the first computes the exponentials
+    assert second.stdout.split() == ["False", "False"]
 
 
 #: (program, profile) run both ways: linear drives streamed, the friction loop, the cross-coupled controller,

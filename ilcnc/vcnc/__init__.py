@@ -27,7 +27,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'simulate_drives'
     ),
     'lifted': ('DAMPING', 'lifted_error', 'sample_fractions'),
-    'lti': ('BadCoefficients', 'cont2discrete_zoh', 'ss2tf', 'tf2ss'),
+    'lti': ('EXPM_CACHE_MAX', 'BadCoefficients', 'cont2discrete_zoh', 'expm_cache_dir', 'expm_cached', 'ss2tf', 'tf2ss'),
     'machine_errors': ('ErrorSources', 'wall_normals'),
     'plan': (
         'Reference', 'ReferenceChunk', 'check_limits', 'corner_zones_mm', 'plan_chunks', 'plan_moves', 'plan_program',
