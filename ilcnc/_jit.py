@@ -263,8 +263,10 @@ def _load_numba() -> Any:
             raise RuntimeError("numba is not installed")
         from ilcnc._lazy import defer_numpy_extras
 
-        defer_numpy_extras()  # numba's first kernel imports scipy.linalg (issue 24: start-up)
+        defer_numpy_extras()  # in case scipy.linalg is imported after all (issue 24: start-up)
         import numba
+
+        _check_blas_without_scipy_linalg()
 
         _install_compile_listener(numba)
         _register_typeof(numba)
@@ -286,6 +288,45 @@ def _load_numba() -> Any:
         # last: a thread that sees numba loaded (without the lock) sees every module's namespace done
         _numba = numba
         return numba
+
+
+def _check_blas_without_scipy_linalg() -> None:
+    """numba's BLAS check without importing all of :mod:`scipy.linalg` (0.1-0.15 s; issue 24: start-up).
+
+    numba checks at the import of ``numba.np.arraymath`` (on its first kernel) that
+    ``scipy.linalg.cython_blas`` imports; ``import scipy.linalg.cython_blas`` runs ``scipy/linalg/__init__``
+    first, which imports most of SciPy's linear algebra. The extension module alone loads in
+    milliseconds: it is put in ``sys.modules`` for the check and taken out again, so a later
+    ``import scipy.linalg.cython_blas`` (numba compiling a kernel that calls BLAS, or anyone) goes the normal
+    way, under its package, and gets the same module (CPython keeps an extension module loaded once).
+    Anything unexpected (no SciPy, another layout) leaves numba to do as it always does.
+    """
+    name = "scipy.linalg.cython_blas"
+    if "scipy.linalg" in sys.modules or name in sys.modules or "numba.np.arraymath" in sys.modules:
+        return
+    try:
+        scipy = importlib.util.find_spec("scipy")
+        if scipy is None or scipy.origin is None:
+            return
+        import glob
+        import os
+
+        found = glob.glob(os.path.join(os.path.dirname(scipy.origin), "linalg", "cython_blas.*.so"))
+        if len(found) != 1:
+            return
+        spec = importlib.util.spec_from_file_location(name, found[0])
+        if spec is None or spec.loader is None:
+            return
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        try:
+            spec.loader.exec_module(module)
+            import numba.np.arraymath  # noqa: F401 - its BLAS check runs now, against that module
+        finally:
+            if sys.modules.get(name) is module:
+                del sys.modules[name]
+    except Exception:  # pragma: no cover - numba does its own check later
+        return
 
 
 def _register_typeof(numba: Any) -> None:

@@ -392,6 +392,12 @@ def test_kernels_wait_for_their_first_call_then_are_numbas_everywhere() -> None:
             assert isinstance(obj, Dispatcher), obj
         assert not isinstance(search._bits_of, _jit.LazyKernel)
         assert search.types is sys.modules["numba"].types
+        # numba's BLAS check passed without importing scipy.linalg; importing it later works as ever
+        from numba.np import arraymath
+        assert arraymath._HAVE_BLAS and "scipy.linalg" not in sys.modules
+        import numpy, scipy.linalg
+        assert scipy.linalg.cython_blas.__name__ == "scipy.linalg.cython_blas"
+        assert scipy.linalg.expm(numpy.zeros((2, 2)))[1, 1] == 1.0
         made_later = _jit.njit(cache=False)(lambda x: x + 1)
         assert isinstance(made_later, Dispatcher)
         print("ok")
