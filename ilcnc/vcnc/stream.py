@@ -10,7 +10,8 @@ each chunk with their state carried on (:class:`ilcnc.vcnc.drives.DriveStream`),
 measures its contour error (sample by sample, so exact per chunk) and adds it
 to the running statistics (:class:`ilcnc.vcnc.simulate.FeedStats`) and ``E(k)``
 sums (:class:`ilcnc.vcnc.command_error.PathWeightedSums`), then drops the chunk.
-Memory: one chunk (~150 B per sample, 40 MB at the default 262,144 samples) plus
+Memory: one chunk (~150 B per sample, 40 MB at the default 262,144 samples), the
+references of the next one or two planned ahead in a thread (36 B per sample each: :func:`_ahead`), plus
 the program's tables. The figures are those of the whole run bit for bit (the
 tests check it), so the learning loop takes this path whenever it can
 (:func:`stream_unsupported`): the ``path`` error estimate, linear drives, no
