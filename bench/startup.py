@@ -15,6 +15,16 @@ machine; the seconds do not. Two more references say where the floor is: ``impor
 ``numba: 1 cached kernel`` (importing numba and loading one kernel from its cache, numba's own set-up
 that any command running a compiled kernel pays).
 
+A small program's kernels run as Python and numba is never imported (``ilcnc._jit.kernels_for``); the
+reference row ``simulate star.ngc, numba`` is the same command with ``ILCNC_SMALL_WORK=0`` (every kernel
+compiled, numba imported as before). Each row also gives the CPU time (user + system) of its runs: on a
+shared machine the wall time grows with the load, the CPU time much less. The load average is printed
+before and after.
+
+``PYTHONDONTWRITEBYTECODE`` is dropped from the commands' environment (as ``bench/simulate_cli.py`` does): an
+installed package has its ``.pyc`` files (pip writes them); without them every run compiles ilcnc's modules
+from source.
+
 Targets (issue 24): every command on a small program < 0.5 s warm (the median); the first run after
 install (cold) < 10 s, or it says on stderr what it is doing (ilcnc's compile notice). Cold,
 ``ilcnc selftest`` (the install step that compiles the kernels ahead) is timed too.
@@ -24,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -40,7 +51,8 @@ TARGET_COLD_S = 10.0
 #: How ilcnc's compile notice starts (ilcnc._jit.COMPILE_NOTICE; not imported: this script times the package).
 NOTICE = "ilcnc: compiling the numba kernels"
 #: Reference rows: not commands a user waits for, so no target.
-REFERENCES = ("python -c pass", "ilcnc --version", "import numpy", "numba: 1 cached kernel")
+REFERENCES = ("python -c pass", "ilcnc --version", "import numpy", "numba: 1 cached kernel",
+              "simulate star.ngc, numba")
 
 
 def commands(tmp: Path) -> list[tuple[str, list[str]]]:
@@ -54,6 +66,8 @@ def commands(tmp: Path) -> list[tuple[str, list[str]]]:
         ("inspect star.ngc", [*ilcnc, "inspect", str(STAR)]),
         ("check star.ngc", [*ilcnc, "check", str(STAR), "--profile", str(PROFILE), "--max-error", "0.05"]),
         ("simulate star.ngc", [*ilcnc, "simulate", str(STAR), "--profile", str(PROFILE)]),
+        ("simulate star.ngc, numba", ["env", "ILCNC_SMALL_WORK=0", *ilcnc, "simulate", str(STAR), "--profile",
+                                      str(PROFILE)]),
         ("learn star.ngc (1 iteration)", [*ilcnc, "learn", str(STAR), "--profile", str(PROFILE), "--out",
                                           str(tmp / "star.ilc.ngc"), "--iterations", "1", "--force"]),
     ]
@@ -64,11 +78,20 @@ def cold_commands(tmp: Path) -> list[tuple[str, list[str]]]:
     return [*commands(tmp), ("ilcnc selftest", [sys.executable, "-m", "ilcnc", "selftest"])]
 
 
-def time_once(argv: list[str], env: dict[str, str]) -> tuple[float, int, list[str]]:
-    """Wall time, exit code and stderr lines of one run."""
+def time_once(argv: list[str], env: dict[str, str]) -> tuple[float, float, int, list[str]]:
+    """Wall time, CPU time (user + system), exit code and stderr lines of one run."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     res = subprocess.run(argv, env=env, capture_output=True, text=True, cwd=ROOT)
-    return time.perf_counter() - t, res.returncode, res.stderr.strip().splitlines()
+    wall = time.perf_counter() - t
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    return wall, cpu, res.returncode, res.stderr.strip().splitlines()
+
+
+def load_average() -> str:
+    """The 1, 5 and 15 minute load averages."""
+    return " / ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
 def main() -> int:
@@ -82,13 +105,16 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="ilcnc-startup-") as tmp_s:
         tmp = Path(tmp_s)
         env = dict(os.environ)
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        print(f"load average before: {load_average()} (1 / 5 / 15 min; {os.cpu_count()} cores)")
         modes = [("warm", None)] + ([("cold", "fresh")] if args.cold else [])
         for mode, cache in modes:
             runs = args.runs if mode == "warm" else args.cold_runs
-            print(f"\n{mode}: wall time of the whole process, s (min / median / max of {runs} runs)")
+            print(f"\n{mode}: wall time of the whole process, s (min / median / max of {runs} runs), CPU time"
+                  " (user + system, min-max)")
             ref: dict[str, float] = {}
             for name, argv in (commands(tmp) if mode == "warm" else cold_commands(tmp)):
-                times = []
+                times, cpus = [], []
                 said = True  # every cold run of the command said what it was doing
                 for _ in range(runs):
                     run_env = dict(env)
@@ -97,11 +123,12 @@ def main() -> int:
                         run_env["NUMBA_CACHE_DIR"] = str(d)
                     elif mode == "warm" and not times:
                         time_once(argv, run_env)  # one untimed run fills the cache for the warm figures
-                    dt, rc, err = time_once(argv, run_env)
+                    dt, cpu, rc, err = time_once(argv, run_env)
                     if rc != 0:
                         print(f"  {name}: exit {rc}: {err[-1] if err else ''}")
                         return 1
                     times.append(dt)
+                    cpus.append(cpu)
                     said &= any(line.startswith(NOTICE) for line in err)
                     if cache == "fresh":
                         shutil.rmtree(run_env["NUMBA_CACHE_DIR"], ignore_errors=True)
@@ -119,8 +146,9 @@ def main() -> int:
                                + ("met (< 10 s)" if med < TARGET_COLD_S else "met (says so on stderr)" if said
                                   else "NOT MET"))
                 ok &= met or not work
-                print(f"  {name:32s} {min(times):7.3f} {med:7.3f} {max(times):7.3f}   {med / base:6.1f}x python,"
-                      f" {med / cli:5.1f}x --version" + (f"   {verdict}" if work else ""))
+                print(f"  {name:28s} {min(times):6.3f} {med:6.3f} {max(times):6.3f}  CPU {min(cpus):5.3f}-{max(cpus):5.3f}"
+                      f"  {med / base:5.1f}x python, {med / cli:4.1f}x --version" + (f"  {verdict}" if work else ""))
+        print(f"load average after: {load_average()}")
     return 0 if ok or not args.check else 1
 
 

@@ -18,10 +18,20 @@ in milliseconds). When a kernel has to be compiled, a line on stderr says so, on
 terminal a progress line names the kernel being compiled and the seconds so far (cleared when it is done;
 under a command's own progress bar the bar shows it: :func:`compiling_now`).
 ``ilcnc selftest`` compiles the kernels of the usual commands ahead of time.
+
+A small job does not import numba at all (issue 24: ``import numba`` and loading the cached kernels cost
+~0.5 s, more than a small program's whole run as Python). A caller that knows how much work a kernel call
+is wraps the call in :func:`kernels_for`: below :data:`SMALL_WORK` items, while numba is not imported yet,
+every stand-in called in that block (the kernel and the kernels it calls) runs its ``py_func``, the same
+Python code numba compiles; an intrinsic runs the Python twin it was made with. Once numba is imported
+(a big job ran, or anything else imported it), kernels run compiled whatever the size. The two agree to
+within a few ulps (numba may reorder a sum or take another libm path), which ``tests/test_startup.py``
+checks on real programs.
 """
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import sys
 import threading
@@ -29,8 +39,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["HAVE_NUMBA", "LazyKernel", "compile_stats", "compiling_now", "intrinsic", "njit", "numba_loaded", "numba_types",
-           "set_component"]
+__all__ = ["HAVE_NUMBA", "PLAN_ONLY_WEIGHT", "SMALL_WORK", "LazyKernel", "compile_stats", "compiled_for",
+           "compiling_now", "intrinsic", "kernels_for", "njit", "numba_loaded", "numba_types", "python_kernels",
+           "python_when_small", "set_component"]
 
 #: numba can be imported (found without importing it: importing it is what start-up saves).
 HAVE_NUMBA = importlib.util.find_spec("numba") is not None
@@ -44,6 +55,109 @@ _plock = threading.RLock()  # the progress line's
 _pending: list[LazyKernel] = []
 _numba: Any = None
 
+#: Samples of Python work (:func:`kernels_for`) after which a process imports numba and runs compiled.
+#: A linear-drive run costs ~8-25 us per sample as Python (star.ngc 23 us, spiral.ngc 12 us; the friction
+#: loop ~65 us, counted 3 times); numba's import and set-up cost ~0.45 s: at 20,000 samples the Python run
+#: costs about what loading numba would.
+#: ``ILCNC_SMALL_WORK`` overrides it (0: always compile, as before issue 24).
+SMALL_WORK = 20_000
+
+
+def _small_work() -> int:
+    import os
+
+    raw = os.environ.get("ILCNC_SMALL_WORK", "")
+    try:
+        return max(0, int(raw)) if raw.strip() else SMALL_WORK
+    except ValueError:
+        return SMALL_WORK
+
+
+#: What a sample of a plan alone (no drives, no contour search: the corner report's passes) costs as Python
+#: against one of a whole run: star.ngc on the example mill, 10-12 ms against 76-81 ms (7,553 samples).
+PLAN_ONLY_WEIGHT = 1.0 / 6.0
+
+_local = threading.local()
+_python_work = 0.0  # items run as Python in kernels_for blocks so far (compiled_for), weighted
+
+
+def _python_mode() -> bool:
+    return getattr(_local, "python", False)
+
+
+def python_kernels() -> bool:
+    """A kernel called now (by this thread) runs as Python: inside a :func:`kernels_for` block of a small job."""
+    return _numba is None and _python_mode()
+
+
+def compiled_for(work: int) -> bool:
+    """A step that brings ``work`` new items (samples: the planner counts them, the stages after it, which take
+    the same samples, pass 0) runs compiled; True means numba is imported now.
+
+    Outside a Python block (:func:`kernels_for`) the answer is True wherever numba is installed (the step
+    would import numba on its first kernel anyway). Inside one, the items are added to the process's count
+    of work done as Python, and once that count reaches :data:`SMALL_WORK` numba is imported and every
+    kernel from then on runs compiled (a run that turns out bigger than its estimate stops paying Python's
+    price). False: take the step's Python or numpy path.
+    """
+    global _python_work
+    if not HAVE_NUMBA:
+        return False
+    if _numba is not None:
+        return True
+    if _python_mode():
+        with _lock:
+            _python_work += max(int(work), 0) * getattr(_local, "weight", 1)
+            if _python_work < _small_work():
+                return False
+    _load_numba()
+    return True
+
+
+class kernels_for:
+    """Context: the kernels called inside run as Python (``py_func``) while numba is not imported and the work
+    done as Python so far plus ``work`` (the block's estimated items) is below :data:`SMALL_WORK`.
+
+    Steps inside that know their size ask :func:`compiled_for`, which may still import numba part way;
+    from then on every kernel runs compiled. ``weight`` is what an item costs as Python against the
+    cheapest kernels (a sample through the friction loop costs ~3 samples of a linear drive): items count
+    ``weight`` times; a block that only plans (no drives, no contour search) counts :data:`PLAN_ONLY_WEIGHT`.
+    ``python`` tells how the block started.
+    """
+
+    __slots__ = ("_prev", "python", "weight")
+
+    def __init__(self, work: int, weight: float = 1) -> None:
+        self.weight = max(float(weight), PLAN_ONLY_WEIGHT)
+        self.python = HAVE_NUMBA and _numba is None and _python_work + max(int(work), 0) * self.weight < _small_work()
+        self._prev: tuple[bool, float] = (False, 1)
+
+    def __enter__(self) -> kernels_for:
+        self._prev = (_python_mode(), getattr(_local, "weight", 1))
+        if self.python:
+            _local.python = True
+            _local.weight = self.weight
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        _local.python, _local.weight = self._prev
+
+
+def python_when_small(estimate: Callable[..., tuple[int, int]]) -> Callable[[Callable[..., Any]], Any]:
+    """Decorator: the function runs in a :func:`kernels_for` block of ``estimate(*args, **kwargs)`` =
+    ``(work, weight)`` (a whole job, e.g. every run of a learning loop, decided once at its start)."""
+
+    def wrap(f: Callable[..., Any]) -> Any:
+        @functools.wraps(f)
+        def run(*args: Any, **kwargs: Any) -> Any:
+            work, weight = estimate(*args, **kwargs)
+            with kernels_for(work, weight):
+                return f(*args, **kwargs)
+
+        return run
+
+    return wrap
+
 
 class LazyKernel:
     """Stands for a numba dispatcher until numba is imported (see the module docstring).
@@ -52,12 +166,14 @@ class LazyKernel:
     its dispatcher; the stand-in then forwards to that dispatcher.
     """
 
-    __slots__ = ("__name__", "__qualname__", "__wrapped__", "_make", "_real", "py_func")
+    __slots__ = ("__name__", "__qualname__", "__wrapped__", "_make", "_python", "_real", "py_func")
 
-    def __init__(self, make: Callable[[Any], Any], py_func: Callable[..., Any]) -> None:
+    def __init__(self, make: Callable[[Any], Any], py_func: Callable[..., Any],
+                 python: Callable[..., Any] | None = None) -> None:
         self._make = make
         self._real: Any = None
         self.py_func = py_func
+        self._python = py_func if python is None else python
         self.__wrapped__ = py_func
         self.__name__ = getattr(py_func, "__name__", "kernel")
         self.__qualname__ = getattr(py_func, "__qualname__", self.__name__)
@@ -69,6 +185,8 @@ class LazyKernel:
         return self._real
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        if _numba is None and _python_mode():
+            return self._python(*args, **kwargs)
         return self.real()(*args, **kwargs)
 
     def __getattr__(self, name: str) -> Any:
@@ -98,11 +216,11 @@ def numba_loaded() -> bool:
     return _numba is not None
 
 
-def _lazy(make: Callable[[Any], Any], f: Callable[..., Any]) -> Any:
+def _lazy(make: Callable[[Any], Any], f: Callable[..., Any], python: Callable[..., Any] | None = None) -> Any:
     with _lock:
         if _numba is not None:
             return make(_numba)
-        k = LazyKernel(make, f)
+        k = LazyKernel(make, f, python)
         _pending.append(k)
         return k
 
@@ -124,9 +242,14 @@ def njit(*args: Any, **kwargs: Any) -> Any:
     return wrap
 
 
-def intrinsic(f: Callable[..., Any]) -> Any:
-    """:func:`numba.extending.intrinsic`, made when numba is imported (numba only: an intrinsic has no Python)."""
-    return _lazy(lambda nb: _extending().intrinsic(f), f)
+def intrinsic(python: Callable[..., Any] | None = None) -> Callable[[Callable[..., Any]], Any]:
+    """:func:`numba.extending.intrinsic`, made when numba is imported; ``python`` is what a call runs as Python
+    (:func:`kernels_for`; an intrinsic's own function is its typing, not its code). Use as ``@intrinsic(twin)``."""
+
+    def wrap(f: Callable[..., Any]) -> Any:
+        return _lazy(lambda nb: _extending().intrinsic(f), f, python)
+
+    return wrap
 
 
 def _extending() -> Any:
@@ -145,8 +268,10 @@ def _load_numba() -> Any:
             raise RuntimeError("numba is not installed")
         from ilcnc._lazy import defer_numpy_extras
 
-        defer_numpy_extras()  # numba's first kernel imports scipy.linalg (issue 24: start-up)
+        defer_numpy_extras()  # in case scipy.linalg is imported after all (issue 24: start-up)
         import numba
+
+        _check_blas_without_scipy_linalg()
 
         _install_compile_listener(numba)
         _register_typeof(numba)
@@ -168,6 +293,45 @@ def _load_numba() -> Any:
         # last: a thread that sees numba loaded (without the lock) sees every module's namespace done
         _numba = numba
         return numba
+
+
+def _check_blas_without_scipy_linalg() -> None:
+    """numba's BLAS check without importing all of :mod:`scipy.linalg` (0.1-0.15 s; issue 24: start-up).
+
+    numba checks at the import of ``numba.np.arraymath`` (on its first kernel) that
+    ``scipy.linalg.cython_blas`` imports; ``import scipy.linalg.cython_blas`` runs ``scipy/linalg/__init__``
+    first, which imports most of SciPy's linear algebra. The extension module alone loads in
+    milliseconds: it is put in ``sys.modules`` for the check and taken out again, so a later
+    ``import scipy.linalg.cython_blas`` (numba compiling a kernel that calls BLAS, or anyone) goes the normal
+    way, under its package, and gets the same module (CPython keeps an extension module loaded once).
+    Anything unexpected (no SciPy, another layout) leaves numba to do as it always does.
+    """
+    name = "scipy.linalg.cython_blas"
+    if "scipy.linalg" in sys.modules or name in sys.modules or "numba.np.arraymath" in sys.modules:
+        return
+    try:
+        scipy = importlib.util.find_spec("scipy")
+        if scipy is None or scipy.origin is None:
+            return
+        import glob
+        import os
+
+        found = glob.glob(os.path.join(os.path.dirname(scipy.origin), "linalg", "cython_blas.*.so"))
+        if len(found) != 1:
+            return
+        spec = importlib.util.spec_from_file_location(name, found[0])
+        if spec is None or spec.loader is None:
+            return
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        try:
+            spec.loader.exec_module(module)
+            import numba.np.arraymath  # noqa: F401 - its BLAS check runs now, against that module
+        finally:
+            if sys.modules.get(name) is module:
+                del sys.modules[name]
+    except Exception:  # pragma: no cover - numba does its own check later
+        return
 
 
 def _register_typeof(numba: Any) -> None:

@@ -18,7 +18,7 @@ from typing import Any
 __all__ = ["defer_numpy_extras", "lazy_exports"]
 
 #: numpy submodules that SciPy's array-API layer imports without using them, and no ilcnc command uses.
-NUMPY_EXTRAS = ("numpy.f2py", "numpy.testing")
+NUMPY_EXTRAS = ("numpy.f2py", "numpy.testing", "numpy.ma", "numpy.polynomial")
 _defer_lock = threading.Lock()
 
 
@@ -45,7 +45,9 @@ def defer_numpy_extras() -> list[str]:
     ``scipy.linalg`` (imported by numba when it loads its first kernel, for its BLAS check, and by the drive
     models' matrix exponential) copies every public attribute of numpy at import
     (``scipy._lib.array_api_compat.numpy``), and reading ``numpy.f2py`` and ``numpy.testing`` imports them:
-    0.06-0.12 s and 0.01-0.03 s (``unittest``) of a 1 s ``ilcnc simulate`` (issue 24). Each one not
+    0.06-0.12 s and 0.01-0.03 s (``unittest``) of a 1 s ``ilcnc simulate`` (issue 24); ``numpy.ma`` and
+    ``numpy.polynomial`` another ~0.015 and ~0.004 s (``numpy.random`` and ``numpy.fft`` are left alone:
+    SciPy uses them while it imports). Each one not
     imported yet is put in ``sys.modules`` as a lazy module (:class:`importlib.util.LazyLoader`, standard
     library): it is the same module, and its code runs when one of its attributes is first read.
     """

@@ -141,7 +141,8 @@ def test_the_command_line_and_the_run_modules_import_neither_numba_nor_scipy_sig
 
 def test_scipy_linalg_leaves_numpys_extras_unloaded_until_used() -> None:
     # what ilcnc does before numba's first kernel and the drive models' expm: scipy.linalg then reads
-    # numpy.f2py and numpy.testing without running them; they run (and work) when first used
+    # numpy.f2py, numpy.testing, numpy.ma and numpy.polynomial without running them; they run (and work) when
+    # first used
     res = _run_python("""
         import sys
         import numpy
@@ -149,13 +150,16 @@ def test_scipy_linalg_leaves_numpys_extras_unloaded_until_used() -> None:
         print(defer_numpy_extras())
         import scipy.linalg
         print("numpy.f2py.rules" in sys.modules, "unittest" in sys.modules)
+        print("numpy.ma.core" in sys.modules, "numpy.polynomial.polynomial" in sys.modules)
         from numpy.testing import assert_array_equal
         assert_array_equal(scipy.linalg.expm(numpy.zeros((2, 2))), numpy.eye(2))
+        assert numpy.ma.masked_array([1, 2], [0, 1]).sum() == 1 and numpy.polynomial.Polynomial([1, 2])(2.0) == 5.0
         print(numpy.f2py.__name__, "numpy.f2py.rules" in sys.modules or hasattr(numpy.f2py, "run_main"),
               "unittest" in sys.modules, defer_numpy_extras())
     """)
     assert res.returncode == 0, res.stderr
-    assert res.stdout.splitlines() == ["['numpy.f2py', 'numpy.testing']", "False False", "numpy.f2py True True []"]
+    assert res.stdout.splitlines() == ["['numpy.f2py', 'numpy.testing', 'numpy.ma', 'numpy.polynomial']", "False False",
+                                       "False False", "numpy.f2py True True []"]
 
 
 def test_one_blas_thread_inside_the_block_and_the_previous_limit_after_it_from_two_threads() -> None:
@@ -205,6 +209,174 @@ def test_inspect_runs_without_numba() -> None:
     assert res.stdout.split() == ["False", "False"]
 
 
+# ---------------------------------------------------------------------------------------------
+# A small job runs its kernels as Python (ilcnc._jit.kernels_for): no numba, the same numbers
+# ---------------------------------------------------------------------------------------------
+
+_STAR = str(ROOT / "samples" / "own" / "star.ngc")
+_MILL = str(ROOT / "configs" / "example-mill.yaml")
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", _STAR, "--profile", _MILL, "--json"],
+    ["check", _STAR, "--profile", _MILL, "--max-error", "0.05"],
+    # learn's corner report runs the output once more (a third run of 7,553 samples), which takes the process past
+    # ilcnc._jit.SMALL_WORK: from there on it compiles, as designed; without the report learn stays in Python
+    ["learn", _STAR, "--profile", _MILL, "--iterations", "1", "--corners", "0", "--force", "--out", "OUT"],
+], ids=["simulate", "check", "learn"])
+def test_a_small_program_command_does_not_import_numba(argv: list[str], tmp_path: Path) -> None:
+    pytest.importorskip("numba")
+    argv = [str(tmp_path / "star.ilc.ngc") if a == "OUT" else a for a in argv]
+    res = _run_python(f"""
+        import sys
+        from typer.testing import CliRunner
+        from ilcnc.cli import app
+        r = CliRunner().invoke(app, {argv!r})
+        assert r.exit_code == 0, r.output
+        print("numba" in sys.modules)
+    """)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split()[-1] == "False"
+
+
+def test_a_big_job_and_a_wide_search_import_numba() -> None:
+    # spiral.ngc: 161k samples, over SMALL_WORK; seed000_corner.ngc: 8,001 samples, but 8,000 one-sample moves
+    # make the contour search's windows ~740 segments wide: the numpy search would cost more than numba
+    pytest.importorskip("numba")
+    for prog, prof in (("samples/third_party/gcode/spiral.ngc", "configs/example-mill.yaml"),
+                       ("samples/own/seed000_corner.ngc", "configs/seed000-paper-corner.yaml")):
+        res = _run_python(f"""
+            import sys
+            from ilcnc.profile.load import load_profile
+            from ilcnc.program import read_program
+            from ilcnc.vcnc.run import run_virtual
+            run_virtual(read_program({prog!r}), load_profile({prof!r}))
+            print("numba" in sys.modules)
+        """)
+        assert res.returncode == 0, res.stderr
+        assert res.stdout.split()[-1] == "True", prog
+
+
+def test_the_exponential_cache_gives_scipys_numbers_bit_for_bit(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    linalg = pytest.importorskip("scipy.linalg")
+    from ilcnc.profile.load import load_profile
+    from ilcnc.vcnc import discrete
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    folder = lti.expm_cache_dir()
+    assert folder == tmp_path / "ilcnc-expm"
+    # the block matrices of every shipped profile's drives, and random ones
+    mats: list[np.ndarray] = []
+    orig = lti.expm_cached
+    monkeypatch.setattr(lti, "expm_cached", lambda m: (mats.append(np.array(m)), orig(m))[1])
+    for config in CONFIGS:
+        prof = load_profile(config)
+        for ax in prof.axes.values():
+            discrete.discrete_model(ax.drive, prof.machine.servo_period_s)
+    rng = np.random.default_rng(24)
+    mats += [rng.uniform(-50.0, 50.0, (n, n)) * 1e-3 for n in (2, 3, 5)]
+    assert len(mats) > 10 and len(list(folder.iterdir())) >= 3
+    for m in mats:
+        first, again, want = orig(m), orig(m), linalg.expm(m)
+        assert _same(first, want) and _same(again, want)
+    # a damaged file is computed again (and written again)
+    victim = sorted(folder.iterdir())[0]
+    victim.write_bytes(victim.read_bytes()[:-1] + b"x")
+    for m in mats:
+        assert _same(orig(m), linalg.expm(m))
+    # the folder holds at most EXPM_CACHE_MAX files: then nothing more is written, the answers stay right
+    monkeypatch.setattr(lti, "EXPM_CACHE_MAX", len(list(folder.iterdir())))
+    fresh = rng.uniform(-1.0, 1.0, (4, 4))
+    n_files = len(list(folder.iterdir()))
+    assert _same(orig(fresh), linalg.expm(fresh)) and len(list(folder.iterdir())) == n_files
+
+
+def test_a_second_run_on_the_same_drives_imports_no_scipy(tmp_path: Path) -> None:
+    code = f"""
+        import sys
+        from typer.testing import CliRunner
+        from ilcnc.cli import app
+        r = CliRunner().invoke(app, ["simulate", {_STAR!r}, "--profile", {_MILL!r}, "--json"])
+        assert r.exit_code == 0, r.output
+        print("scipy" in sys.modules, "numba" in sys.modules)
+    """
+    first = _run_python(code, NUMBA_CACHE_DIR=str(tmp_path))
+    second = _run_python(code, NUMBA_CACHE_DIR=str(tmp_path))
+    assert first.returncode == 0 and second.returncode == 0, first.stderr + second.stderr
+    assert first.stdout.split() == ["True", "False"]  # the first computes the exponentials
+    assert second.stdout.split() == ["False", "False"]
+
+
+#: (program, profile) run both ways: linear drives streamed, the friction loop, the cross-coupled controller,
+#: a Klartext program on a second-order drive with dead time
+_BOTH_WAYS = [("samples/own/star.ngc", "configs/example-mill.yaml"),
+              ("samples/own/square.ngc", "configs/seed001-duong-p-ff-friction.yaml"),
+              ("samples/own/square.ngc", "configs/seed003-li-cross-coupled.yaml"),
+              ("samples/own/star.h", "configs/seed004-ward-sopdt.yaml")]
+
+
+def test_python_kernels_agree_with_the_compiled_ones_within_ulps() -> None:
+    """Each program run as Python (its kernels' py_func, the plan's, search's and E(k)'s numpy twins), then
+    compiled, in one process: the samples, the contour error, the figures and E(k) agree to a few ulps.
+
+    Tolerance, as tests/test_contour.py's ``_assert_same_error``: the numpy contour search computes the
+    kernel's formulas, not its instructions (LLVM may contract ``a*b + c`` into one FMA, numpy's SIMD
+    sin/cos/atan2 are not libm's); each distance or vector in mm is a chain of at most 16 operations on
+    coordinates of magnitude at most R (the largest coordinate), so the two agree within 16 eps R, and so do
+    the means, RMS and E(k) (weighted means of them). Measured (ulps of R): positions bit for bit; star.h's
+    error vectors within 3.4, its distances within 0.8, its figures within 1e-4; the rest bit for bit.
+    """
+    pytest.importorskip("numba")
+    res = _run_python(f"""
+        import json, sys
+        import numpy as np
+        from ilcnc import _jit
+        from ilcnc.profile.load import load_profile
+        from ilcnc.program import read_program
+        from ilcnc.vcnc.run import run_virtual
+
+        def runs():
+            out = []
+            for prog, prof in {_BOTH_WAYS!r}:
+                p, f = read_program(prog), load_profile(prof)
+                s, w = run_virtual(p, f), run_virtual(p, f, keep_samples=True)
+                out.append(dict(
+                    figures=[s.stats[k] for k in ("max", "mean", "rms")] + [s.air_stats[k] for k in ("max", "mean", "rms")]
+                    + [w.stats[k] for k in ("max", "mean", "rms")] + [s.cycle_time_s, w.cycle_time_s],
+                    n=[s.n_samples, w.n_samples], actual=w.actual_mm, dist=w.error.dist_mm, vec=w.error.vector_mm,
+                    # E(k) where the run went chunk by chunk (the friction and cross-coupled loops run whole)
+                    e=s.signal.e_mm if hasattr(s, "signal") else np.zeros(1),
+                    valid=s.signal.valid if hasattr(s, "signal") else np.zeros(1, bool)))
+            return out
+
+        python = runs()   # ILCNC_SMALL_WORK is huge: every kernel as Python
+        assert "numba" not in sys.modules
+        _jit.compiled_for(0)  # outside a Python block: imports numba
+        assert _jit.numba_loaded()
+        compiled = runs()
+
+        def ulps(a, b, r):  # the largest difference in ulps of r (the run's largest coordinate, mm)
+            a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+            assert a.shape == b.shape and np.array_equal(np.isnan(a), np.isnan(b))
+            ok = np.isfinite(b)
+            return float(np.max(np.abs(a[ok] - b[ok]), initial=0.0) / (r * np.finfo(float).eps))
+
+        report = []
+        for x, y in zip(python, compiled):
+            assert x["n"] == y["n"] and np.array_equal(x["valid"], y["valid"])
+            r = float(np.max(np.abs(y["actual"])))
+            report.append({{"figures": ulps(x["figures"], y["figures"], r), "actual": ulps(x["actual"], y["actual"], r),
+                           "dist": ulps(x["dist"], y["dist"], r), "vector": ulps(x["vec"], y["vec"], r),
+                           "e": ulps(x["e"], y["e"], r)}})
+        print(json.dumps(report))
+    """, ILCNC_SMALL_WORK=str(10**12))
+    assert res.returncode == 0, res.stderr
+    report = json.loads(res.stdout.splitlines()[-1])
+    assert len(report) == len(_BOTH_WAYS)
+    for (prog, prof), r in zip(_BOTH_WAYS, report, strict=True):
+        assert max(r.values()) <= 16.0, (prog, prof, r)
+
+
 def test_kernels_wait_for_their_first_call_then_are_numbas_everywhere() -> None:
     pytest.importorskip("numba")
     res = _run_python("""
@@ -222,6 +394,12 @@ def test_kernels_wait_for_their_first_call_then_are_numbas_everywhere() -> None:
             assert isinstance(obj, Dispatcher), obj
         assert not isinstance(search._bits_of, _jit.LazyKernel)
         assert search.types is sys.modules["numba"].types
+        # numba's BLAS check passed without importing scipy.linalg; importing it later works as ever
+        from numba.np import arraymath
+        assert arraymath._HAVE_BLAS and "scipy.linalg" not in sys.modules
+        import numpy, scipy.linalg
+        assert scipy.linalg.cython_blas.__name__ == "scipy.linalg.cython_blas"
+        assert scipy.linalg.expm(numpy.zeros((2, 2)))[1, 1] == 1.0
         made_later = _jit.njit(cache=False)(lambda x: x + 1)
         assert isinstance(made_later, Dispatcher)
         print("ok")

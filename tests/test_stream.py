@@ -181,3 +181,34 @@ def test_in_position_wait_after_rapids_is_the_profiles() -> None:
     groups = (np.diff((prog.moves.kind == 0).astype(int)) != 0).sum()
     assert groups > 10
     assert t_wait - t_none == pytest.approx(groups * (0.1 - 0.003), rel=0.01)
+
+
+def test_planning_ahead_hands_out_the_same_chunks_and_the_planners_error() -> None:
+    """:func:`ilcnc.vcnc.stream._ahead` plans in a thread one chunk ahead: the same items in order, the planner's
+    error raised in the caller after the items before it, and a caller that stops early ends the thread."""
+    import threading
+
+    from ilcnc._threads import thread_limit_scope
+    from ilcnc.errors import InputError
+    from ilcnc.vcnc import stream
+
+    def planner(fail_after: int | None):
+        for i in range(6):
+            if fail_after is not None and i == fail_after:
+                raise InputError("prog.ngc", 7, "the program's motion takes too long")
+            yield np.full(3, float(i))
+
+    with thread_limit_scope(2):
+        got = list(stream._ahead(planner(None)))
+        assert [float(g[0]) for g in got] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+        seen = []
+        with pytest.raises(InputError, match="takes too long"):
+            for g in stream._ahead(planner(2)):
+                seen.append(float(g[0]))
+        assert seen == [0.0, 1.0]
+        it = stream._ahead(planner(None))
+        assert float(next(it)[0]) == 0.0
+        it.close()
+    assert not any(t.name == "ilcnc-plan-ahead" for t in threading.enumerate())
+    with thread_limit_scope(1):  # one thread allowed: planned in the caller's thread
+        assert [float(g[0]) for g in stream._ahead(planner(None))] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]

@@ -108,14 +108,22 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ilcnc._jit import HAVE_NUMBA, njit, set_component
+from ilcnc._jit import HAVE_NUMBA, compiled_for, njit, python_kernels, set_component
 from ilcnc.contour.path import TWO_PI, PathGeometry, WorkBuffers
 
 if HAVE_NUMBA:  # pragma: no cover - exercised by the environment, not by a test
     from ilcnc._jit import intrinsic  # numba's, made when the first kernel runs (start-up: issue 24)
     from ilcnc._jit import numba_types as types
 
-    @intrinsic
+    def _bits_of_python(x: float) -> int:
+        """:func:`_bits_of` as Python (:func:`ilcnc._jit.kernels_for`)."""
+        return int(np.float64(x).view(np.int64))
+
+    def _float_of_python(x: int) -> float:
+        """:func:`_float_of` as Python."""
+        return float(np.int64(x).view(np.float64))
+
+    @intrinsic(_bits_of_python)
     def _bits_of(typingctx, x):
         """The IEEE bits of a float64 as an int64 (``x.view(np.int64)`` of a scalar)."""
         def codegen(context, builder, signature, args):
@@ -123,7 +131,7 @@ if HAVE_NUMBA:  # pragma: no cover - exercised by the environment, not by a test
 
         return types.int64(types.float64), codegen
 
-    @intrinsic
+    @intrinsic(_float_of_python)
     def _float_of(typingctx, x):
         """The float64 whose IEEE bits are the int64 ``x``."""
         def codegen(context, builder, signature, args):
@@ -325,7 +333,9 @@ def contour_error(
     nw = workers if workers is not None else thread_limit()
     nw = max(1, min(int(nw), len(starts)))
     walked = [0] * nw
-    use_kernel = _USE_KERNEL
+    # in a small job's Python block (ilcnc._jit.kernels_for) the numpy path, unless its windows are wide: it costs
+    # a pass per candidate segment, a sample with a window of s segments costs s / (2w + 1) samples' work
+    use_kernel = _USE_KERNEL and compiled_for(_extra_window_work(path, p, hint, r, reach, w) if python_kernels() else 0)
     if use_kernel:
         tabs = path._kernel_tables()
         bits = max(1, (2 * w).bit_length())
@@ -353,6 +363,15 @@ def contour_error(
             list(ex.map(work, range(nw)))
     out.walked = int(sum(walked))
     return out
+
+
+def _extra_window_work(path: PathGeometry, p, h, r, reach: tuple[float, NDArray[np.float64]], w: int) -> int:
+    """The numpy search's work beyond one window of ``2w + 1`` segments per sample, in samples (a path of many
+    segments shorter than the reach: seed000_corner.ngc, 8,000 one-sample moves, has windows of ~740)."""
+    if r is None or p.shape[0] == 0:
+        return 0
+    lo, hi, _bits = _ranges(path, p[:, 0], p[:, 1], p[:, 2], h, r, reach, w)
+    return max(0, int(np.sum(hi - lo + 1)) // (2 * w + 1) - p.shape[0])
 
 
 def _ranges(path: PathGeometry, px, py, pz, h, r, reach: tuple[float, NDArray[np.float64]], w: int):

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ilcnc._jit import python_when_small
 from ilcnc.contour.air import (
     MOVE_CUT,
     CuttingRule,
@@ -650,6 +651,18 @@ def program_with_corrections(
     return text, prog
 
 
+def _learn_work(program: Program, profile: MachineProfile, *_: Any, iterations: int | None = None,
+                **__: Any) -> tuple[int, int]:
+    """Samples of every run of :func:`learn_virtual` and their weight (ilcnc._jit.kernels_for): a small program
+    learns without numba, its runs cost less as Python than importing numba."""
+    from ilcnc.vcnc.drives import DriveStream
+    from ilcnc.vcnc.plan_base import nominal_samples
+
+    n_runs = 1 + (profile.learning.iterations if iterations is None else max(int(iterations), 0))
+    return nominal_samples(program.moves, profile) * n_runs, 1 if DriveStream.unsupported(profile) is None else 3
+
+
+@python_when_small(_learn_work)
 def learn_virtual(
     program: Program,
     profile: MachineProfile,

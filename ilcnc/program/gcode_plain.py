@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ilcnc._jit import python_kernels
 from ilcnc.errors import ProgramError
 from ilcnc.program.model import SPAN_LAZY, Program
 
@@ -46,7 +47,7 @@ def classify_lines(text: str, data: bytes, n: int, line_start: np.ndarray, path:
     if use_scanner:
         from ilcnc.program import scan
 
-        if scan.AVAILABLE:
+        if scan.AVAILABLE and not python_kernels():
             return scan.scan_plain_blocks(data, line_start)
     # one C-level regular-expression pass: plain CAM blocks (numbers captured) or other
     rows = _ALL_LINES.findall(text)
@@ -92,7 +93,9 @@ def resolve_fast_spans(program: Program, indices: np.ndarray) -> None:
     text = program.text
     from ilcnc.program import scan
 
-    if scan.AVAILABLE and idx.size > 1:
+    # in a small job's Python block (ilcnc._jit.kernels_for) the regular expressions below: the scanner's
+    # integer arithmetic is numba's int64, not what its Python version computes on uint8 bytes
+    if scan.AVAILABLE and idx.size > 1 and not python_kernels():
         data = np.frombuffer(text.encode("latin-1"), dtype=np.uint8)
         offsets = program.line_offsets()
         line0 = mv.line[idx].astype(np.int64) - 1

@@ -21,11 +21,13 @@ from typing import Any
 
 import numpy as np
 
+from ilcnc._jit import PLAN_ONLY_WEIGHT, kernels_for
 from ilcnc.outcomes import PathMode
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
 from ilcnc.shop.linuxcnc_prepare import PathSetting, path_settings
 from ilcnc.units import MM_PER_INCH, length_word
+from ilcnc.vcnc.plan_base import nominal_samples
 from ilcnc.vcnc.rounding import (
     CornerError,
     VertexMax,
@@ -264,6 +266,13 @@ def corner_report(program: Program, profile: MachineProfile, vertices: VertexMax
     cycle_time_s : float, optional
         The drawing's planned cycle time when known, s (planned here otherwise).
     """
+    # the drawing planned (no drive): as Python on a small program, like the run (ilcnc._jit.kernels_for)
+    with kernels_for(nominal_samples(program.moves, profile), PLAN_ONLY_WEIGHT):
+        return _corner_report(program, profile, vertices, top=top, target_um=target_um, cycle_time_s=cycle_time_s)
+
+
+def _corner_report(program: Program, profile: MachineProfile, vertices: VertexMax, *, top: int,
+                   target_um: float | None, cycle_time_s: float | None) -> CornerReport:
     rounding = planner_rounding(program, profile)
     tols = vertex_tolerances(program, profile)
     floor = 0.5 * profile.machine.resolution_mm  # below half a resolution step a corner is no finding

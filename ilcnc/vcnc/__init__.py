@@ -27,13 +27,14 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'simulate_drives'
     ),
     'lifted': ('DAMPING', 'lifted_error', 'sample_fractions'),
-    'lti': ('BadCoefficients', 'cont2discrete_zoh', 'ss2tf', 'tf2ss'),
+    'lti': ('EXPM_CACHE_MAX', 'BadCoefficients', 'cont2discrete_zoh', 'expm_cache_dir', 'expm_cached', 'ss2tf', 'tf2ss'),
     'machine_errors': ('ErrorSources', 'wall_normals'),
     'plan': (
         'Reference', 'ReferenceChunk', 'check_limits', 'corner_zones_mm', 'plan_chunks', 'plan_moves', 'plan_program',
         'planned_duration_s', 'planned_move_times_s', 'profile_moves', 'vertex_tolerances_mm'
     ),
-    'plan_base': ('EPS_MM', 'MAX_RUN_SAMPLES', 'PlanLimits', 'check_run_length', 'move_directions', 'nominal_speed_mm_s'),
+    'plan_base': ('EPS_MM', 'MAX_RUN_SAMPLES', 'PlanLimits', 'check_run_length', 'move_directions', 'nominal_samples',
+                  'nominal_speed_mm_s'),
     'plan_corners': ('BLEND_LENGTH_FRACTION', 'RoundingTables', 'junction_speeds', 'junction_tolerances', 'rounding_tables'),
     'plan_kernels': ('BLOCK_SAMPLES', 'arc_table', 'group_kernel', 'group_range', 'group_state'),
     'plan_tp': (

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc._jit import HAVE_NUMBA, njit
+from ilcnc._jit import compiled_for, njit
 from ilcnc.profile.schema import DEFAULT_ERROR
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.model import MOVE_RAPID, Program
@@ -291,7 +291,7 @@ class PathWeightedSums:
                 np.asarray(err.vector_mm, dtype=np.float64), np.asarray(err.dist_mm, dtype=np.float64),
                 feed, on_feed is not None, times, period, int(first_sample), self.cmd, self.k_start, self.num,
                 self.den, self.tnum)
-        if HAVE_NUMBA:
+        if compiled_for(0):  # in a small run (ilcnc._jit.kernels_for): the numpy path
             _path_weighted_kernel_jit()(*args)
         else:  # pragma: no cover - numba is a runtime dependency
             _path_weighted_numpy(*args)

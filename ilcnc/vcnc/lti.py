@@ -13,17 +13,32 @@ on random systems):
 - :func:`cont2discrete_zoh`: the ``A, B`` of ``scipy.signal.cont2discrete(..., method="zoh")``: the
   exponential of the block matrix ``[[A, B], [0, 0]]·dt``.
 
+The exponentials are kept in a small cache on disk (:func:`expm_cached`): a later run with the same drives
+reads SciPy's result back instead of importing :mod:`scipy.linalg` (0.1-0.2 s, a third of a small
+program's whole command once numba is not imported either: issue 24).
+
 Adapted from SciPy (``scipy/signal/_lti_conversion.py``, ``_filter_design.normalize``), BSD-3-Clause,
 Copyright (c) 2001-2002 Enthought, Inc. 2003, SciPy Developers.
 """
 
 from __future__ import annotations
 
+import hashlib
+import importlib.util
+import os
 import warnings
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["BadCoefficients", "cont2discrete_zoh", "ss2tf", "tf2ss"]
+from ilcnc.errors import IlcncError
+
+__all__ = ["EXPM_CACHE_MAX", "BadCoefficients", "cont2discrete_zoh", "expm_cache_dir", "expm_cached", "ss2tf",
+           "tf2ss"]
+
+#: Most exponentials kept on disk: a profile's drives need ~10; a tuning or identification loop asks for
+#: thousands of different ones, which are not written once the folder holds this many.
+EXPM_CACHE_MAX = 256
 
 
 class BadCoefficients(UserWarning):
@@ -113,16 +128,79 @@ def ss2tf(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> tuple[n
 
 def cont2discrete_zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """``ad, bd`` of ``scipy.signal.cont2discrete((A, B, C, D), dt, method="zoh")`` (``b`` is (n, m))."""
+    em_upper = np.hstack((a, b))
+    em_lower = np.hstack((np.zeros((b.shape[1], a.shape[0])), np.zeros((b.shape[1], b.shape[1]))))
+    em = np.vstack((em_upper, em_lower))
+    ms = expm_cached(dt * em)
+    ms = ms[: a.shape[0], :]
+    return ms[:, 0 : a.shape[1]], ms[:, a.shape[1] :]
+
+
+def _expm(m: np.ndarray) -> np.ndarray:
     from ilcnc._lazy import defer_numpy_extras
     from ilcnc._threads import one_blas_thread
 
     defer_numpy_extras()  # before scipy.linalg's import (issue 24: start-up)
-    from scipy.linalg import expm  # ~0.25 s, and only when a drive model is discretised
+    from scipy.linalg import expm  # ~0.1-0.25 s, and only when a drive model is discretised
 
-    em_upper = np.hstack((a, b))
-    em_lower = np.hstack((np.zeros((b.shape[1], a.shape[0])), np.zeros((b.shape[1], b.shape[1]))))
-    em = np.vstack((em_upper, em_lower))
     with one_blas_thread():  # a 4x4 exponential: OpenBLAS's thread pool only makes it 300x slower (issue 24)
-        ms = expm(dt * em)
-    ms = ms[: a.shape[0], :]
-    return ms[:, 0 : a.shape[1]], ms[:, a.shape[1] :]
+        return expm(m)
+
+
+def expm_cache_dir() -> Path | None:
+    """Where :func:`expm_cached` keeps its files: ``$NUMBA_CACHE_DIR/ilcnc-expm`` when that is set (where numba
+    keeps its kernels), else ``__pycache__/expm`` beside this module (as numba does); None when neither can be
+    made (then nothing is cached)."""
+    base = os.environ.get("NUMBA_CACHE_DIR")
+    d = Path(base) / "ilcnc-expm" if base else Path(__file__).resolve().parent / "__pycache__" / "expm"
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return d if os.access(d, os.W_OK) else None
+
+
+def _scipy_stamp() -> bytes:
+    """What names the SciPy that computed an entry: its ``version.py`` (version and git revision)."""
+    spec = importlib.util.find_spec("scipy")
+    if spec is None or spec.origin is None:
+        return b""
+    try:
+        return (Path(spec.origin).parent / "version.py").read_bytes()
+    except OSError:
+        return b""
+
+
+def expm_cached(m: np.ndarray) -> np.ndarray:
+    """``scipy.linalg.expm(m)`` of a float64 matrix, read from the cache when this SciPy computed it before.
+
+    Why a cache of our own: a drive model's discretisation needs the exponential of a 3x3-6x6 matrix, and
+    ``import scipy.linalg`` alone costs 0.1-0.2 s. The key is the matrix's bytes and SciPy's version file, the
+    value is SciPy's result as it was, so a hit gives the same numbers bit for bit; each file carries a
+    SHA-256 of its content, a file that does not match is computed again. Writes are atomic
+    (:func:`ilcnc.fileio.write_atomic`) and best effort: a folder that cannot be written caches nothing.
+    """
+    a = np.ascontiguousarray(m, dtype=np.float64)
+    d = expm_cache_dir() if a.ndim == 2 else None
+    if d is None:
+        return _expm(a)
+    key = hashlib.sha256(repr(a.shape).encode() + a.tobytes() + _scipy_stamp()).hexdigest()[:40]
+    path = d / f"{key}.f64"
+    try:
+        data = path.read_bytes()
+    except OSError:
+        data = b""
+    body, digest = data[:-32], data[-32:]
+    if len(body) == a.nbytes and hashlib.sha256(body).digest() == digest:
+        return np.frombuffer(body, dtype=np.float64).reshape(a.shape).copy()
+    out = _expm(a)
+    try:
+        if len(os.listdir(d)) < EXPM_CACHE_MAX:
+            from ilcnc.fileio import unsynced_writes, write_atomic
+
+            body = np.ascontiguousarray(out, dtype=np.float64).tobytes()
+            with unsynced_writes():  # a torn file fails its SHA-256 and is computed again
+                write_atomic(path, body + hashlib.sha256(body).digest())
+    except (OSError, IlcncError):
+        pass
+    return out

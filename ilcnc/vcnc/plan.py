@@ -109,7 +109,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ilcnc._jit import HAVE_NUMBA, njit
+from ilcnc._jit import HAVE_NUMBA, compiled_for, njit
 from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.geometry import arc_sweep_rad, move_lengths_mm
 from ilcnc.program.model import (
@@ -308,7 +308,7 @@ def _plan(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corn
     final_speed = speed.copy()
     at = 1
     for gi, g in enumerate(setups):
-        plan_group = _plan_group_kernel if kernel else _plan_group_numpy
+        plan_group = _plan_group_kernel if kernel and compiled_for(g.first_size) else _plan_group_numpy
         buf, n_out, moves_g, counts_g, used = plan_group(moves, geo, g, length, limits, period_s, mode, max_passes,
                                                          buf, at)
         final_speed[g.idx] = used
@@ -550,11 +550,12 @@ def _plan_pieces(moves: MoveTable, limits: PlanLimits, period_s: float, mode: st
     hold = max(_HOLD_SAMPLES, math.ceil(in_position_s / period_s))
     yield moves.start_mm[0][None, :].copy(), np.full(1, -1, dtype=np.int32)
     for gi, g in enumerate(setups):
-        if HAVE_NUMBA and g.first_size > chunk:
+        compiled = compiled_for(g.first_size)  # a small group in a Python run: the numpy path (ilcnc._jit)
+        if compiled and g.first_size > chunk:
             last_row, last_move = yield from _group_in_ranges(moves, geo, g, length, limits, period_s, mode,
                                                               max_passes, chunk)
         else:
-            plan_group = _plan_group_kernel if HAVE_NUMBA else _plan_group_numpy
+            plan_group = _plan_group_kernel if compiled else _plan_group_numpy
             buf, n_out, moves_g, counts_g, _used = plan_group(moves, geo, g, length, limits, period_s, mode,
                                                               max_passes, np.empty((g.first_size + 16, 3)), 0)
             last_row, last_move = buf[n_out - 1].copy(), int(moves_g[-1])

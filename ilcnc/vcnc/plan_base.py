@@ -10,6 +10,7 @@ its programmed feed capped by the axes' velocity limits
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,7 +21,8 @@ from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.geometry import arc_sweep_rad, move_lengths_mm
 from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
 
-__all__ = ["EPS_MM", "MAX_RUN_SAMPLES", "PlanLimits", "check_run_length", "move_directions", "nominal_speed_mm_s"]
+__all__ = ["EPS_MM", "MAX_RUN_SAMPLES", "PlanLimits", "check_run_length", "move_directions", "nominal_samples",
+           "nominal_speed_mm_s"]
 
 #: Lengths below this are zero, mm.
 EPS_MM = 1e-9
@@ -115,6 +117,22 @@ def nominal_speed_mm_s(moves: MoveTable, length: NDArray[np.float64], limits: Pl
 MAX_RUN_SAMPLES = 1e9
 
 
+def _nominal_move_times(moves: MoveTable, profile: MachineProfile) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Each move's length (mm) and its time at the programmed feed capped by the axes' velocities (s)."""
+    length = move_lengths_mm(moves)
+    return length, length / nominal_speed_mm_s(moves, length, PlanLimits.from_profile(profile))
+
+
+def nominal_samples(moves: MoveTable, profile: MachineProfile) -> int:
+    """Servo periods the moves take at least (:func:`check_run_length`'s bound): the size of a run before it is
+    planned, which decides whether its kernels are worth compiling (:func:`ilcnc._jit.kernels_for`)."""
+    if len(moves) == 0:
+        return 0
+    total_s = float(np.sum(_nominal_move_times(moves, profile)[1]))
+    return int(min(total_s / profile.machine.servo_period_s, MAX_RUN_SAMPLES)) if math.isfinite(total_s) else int(
+        MAX_RUN_SAMPLES)
+
+
 def check_run_length(program: object, moves: MoveTable, profile: MachineProfile) -> None:
     """Refuse a program whose motion alone takes more than :data:`MAX_RUN_SAMPLES` servo periods.
 
@@ -124,8 +142,7 @@ def check_run_length(program: object, moves: MoveTable, profile: MachineProfile)
     """
     if len(moves) == 0:
         return
-    length = move_lengths_mm(moves)
-    t = length / nominal_speed_mm_s(moves, length, PlanLimits.from_profile(profile))
+    length, t = _nominal_move_times(moves, profile)
     total_s = float(np.sum(t))
     period = profile.machine.servo_period_s
     if not total_s / period > MAX_RUN_SAMPLES:

@@ -73,16 +73,25 @@ def run_virtual(program: Program, profile: MachineProfile, *, against: Program |
     vertices : ilcnc.vcnc.rounding.VertexMax, optional
         Given: the cutting error near each end point of the judged path is added to it (:mod:`ilcnc.vcnc.rounding`).
     """
+    from ilcnc._jit import kernels_for
+    from ilcnc.vcnc.drives import DriveStream
     from ilcnc.vcnc.machine_errors import ErrorSources
+    from ilcnc.vcnc.plan_base import nominal_samples
     from ilcnc.vcnc.simulate import simulate_program
     from ilcnc.vcnc.stream import simulate_streamed, stream_unsupported
 
     if sources is None:
         sources = ErrorSources.from_profile(profile)
-    if not keep_samples and stream_unsupported(profile, kind, sources=sources) is None:
-        return simulate_streamed(program, profile, against=against, gate_mm=gate_mm, progress=progress,
-                                 vertices=vertices)
-    return simulate_program(program, profile, against=against, progress=progress, sources=sources, vertices=vertices)
+    # a small run's kernels run as Python: importing numba would cost more than the run (ilcnc._jit.kernels_for);
+    # a sample through the friction or cross-coupled loop costs ~3 of a linear drive's as Python
+    moves = getattr(program, "moves", None)
+    weight = 1 if DriveStream.unsupported(profile) is None else 3
+    with kernels_for(0 if moves is None else nominal_samples(moves, profile), weight):
+        if not keep_samples and stream_unsupported(profile, kind, sources=sources) is None:
+            return simulate_streamed(program, profile, against=against, gate_mm=gate_mm, progress=progress,
+                                     vertices=vertices)
+        return simulate_program(program, profile, against=against, progress=progress, sources=sources,
+                                vertices=vertices)
 
 
 def simulate_figures(program: Program, profile: MachineProfile, *, against: Program | None = None,
