@@ -680,7 +680,9 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     if ref_stats is not None and cycle_ran > budget.limit_s():
         worse.append("cycle")  # held back as far as the limiter goes, still over the budget (as virtual learning)
     entry.kept = not worse
-    notes = [*meas.notes, "cycle time: " + budget.note(f"iteration {entry.iteration}", cycle_ran, motion)]
+    notes = list(meas.notes)
+    if motion is not None:  # the planned cycle time next to the one the log measured (points measure no time)
+        notes.append("cycle time: " + budget.note(f"iteration {entry.iteration}", cycle_ran, motion))
     if profile.learning.refine.feed == "on":
         notes.append("feed: learning.refine.feed lowers feeds on the virtual CNC only (learn without --log); this"
                      " measured step changes coordinates alone")
