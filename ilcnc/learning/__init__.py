@@ -9,7 +9,10 @@ from ilcnc._lazy import lazy_exports
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
     'arc_starts': ('arc_start_constraint', 'keep_arcs_valid'),
-    'cycle_hold': ('CLIP_CYCLE', 'HALVINGS', 'NEIGHBOUR_MOVES', 'CycleHold', 'hold_cycle_time', 'slowed_moves'),
+    'cycle_hold': (
+        'CLIP_CYCLE', 'HALVINGS', 'NEIGHBOUR_MOVES', 'CycleBudget', 'CycleHold', 'hold_cycle_time', 'motion_time_s',
+        'slowed_moves'
+    ),
     'feed': ('FeedLaw', 'feed_cost_s', 'move_errors_mm', 'move_times_s'),
     'gain_schedule': ('DEFAULT_DK', 'ScheduleResult', 'schedule_gains', 'seed001_standin_program'),
     'guard': ('GROWTH_ABS_MM', 'GROWTH_REL', 'GROWTH_RESOLUTION_SHARE', 'LearningGuard', 'best_stats', 'grew'),
@@ -24,8 +27,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     'learner': (
         'CLIP_ARC', 'CLIP_BOUND', 'CLIP_MOVE_LENGTH', 'Clip', 'IterationRecord', 'LearnResult', 'Learner',
-        'UpdateShaper', 'changed_coordinates', 'clip_corrections', 'correctable_commands', 'frozen_reasons',
-        'learn_virtual', 'program_with_corrections'
+        'UpdateShaper', 'changed_coordinates', 'clip_corrections', 'correctable_commands', 'cycle_budget',
+        'frozen_reasons', 'hold_step', 'learn_virtual', 'program_with_corrections'
     ),
     'lifted_check': (
         'DEFAULT_GAMMAS', 'DEFAULT_MAX_COMMANDS', 'DEFAULT_Q_FILTERS_HZ', 'LiftedCandidate', 'LiftedCheck',

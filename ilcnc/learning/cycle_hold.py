@@ -13,6 +13,12 @@ commands keep their previous correction. Every coordinate held is reported as a 
 ``"cycle time"`` (:data:`CLIP_CYCLE`): a limiter on the law's output, counted like the correction bound.
 
 Only the plan is re-run (not the drives nor the contour error): the planner alone sets the cycle time.
+
+:class:`CycleBudget` is the budget of one learning run, virtual or measured: the original program's plan (the
+reference), the limit, the hold of a proposal and the messages. A measured step plans the proposal with the
+profile's planner model (``planner.profile: linuxcnc`` is LinuxCNC's, :mod:`ilcnc.vcnc.plan_tp`) and compares it
+with the plan of the original program by the same model, so like is compared with like; the log's own motion
+time (:func:`motion_time_s`) is reported next to it.
 """
 
 from __future__ import annotations
@@ -23,7 +29,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["CLIP_CYCLE", "HALVINGS", "NEIGHBOUR_MOVES", "CycleHold", "hold_cycle_time", "slowed_moves"]
+from ilcnc.learning.feed import FeedLaw
+from ilcnc.profile.sections import MachineProfile
+from ilcnc.program.model import Program
+from ilcnc.wording import plural
+
+__all__ = ["CLIP_CYCLE", "HALVINGS", "NEIGHBOUR_MOVES", "CycleBudget", "CycleHold", "hold_cycle_time", "motion_time_s",
+           "slowed_moves"]
 
 #: Why a correction was changed after the law computed it: it slowed the planner beyond the cycle-time budget.
 CLIP_CYCLE = "cycle time"
@@ -128,3 +140,121 @@ def hold_cycle_time(u_prev_mm: NDArray[np.float64], u_new_mm: NDArray[np.float64
         times, cycle = plan(u)
         rounds += 1
     return CycleHold(u, held, rounds, float(cycle), bool(cycle <= limit_s))
+
+
+def motion_time_s(t_s: NDArray[np.float64], pos_mm: NDArray[np.float64]) -> float | None:
+    """The time from the first to the last change of a log's commanded position, s (its run's measured motion
+    time: the log's lead-in and settle tail, where the command stands still, do not count).
+
+    Parameters
+    ----------
+    t_s : ndarray (N,)
+        Sample times, s.
+    pos_mm : ndarray (N, 3)
+        Commanded position of each sample, mm (a column the log lacks is NaN and is left out).
+
+    Returns
+    -------
+    float or None
+        None when the log has no commanded position or it never changes.
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    pos = np.asarray(pos_mm, dtype=np.float64)
+    cols = np.all(np.isfinite(pos), axis=0)
+    if t.size < 2 or not cols.any():
+        return None
+    moved = np.flatnonzero(np.any(np.diff(pos[:, cols], axis=0) != 0.0, axis=1))
+    if moved.size == 0:
+        return None
+    # a change between samples i and i+1: motion runs from sample first to sample last + 1
+    return float(t[moved[-1] + 1] - t[moved[0]])
+
+
+@dataclass(slots=True)
+class CycleBudget:
+    """``learning.cycle_budget_pct`` in one learning run, virtual or measured (see the module docstring).
+
+    Attributes
+    ----------
+    program : Program
+        The program learned on, uncorrected (refined, when refined): its plan is the budget's reference.
+    profile : MachineProfile
+        Its planner model, servo period, resolution and ``learning.cycle_budget_pct``.
+    rewrite : callable
+        ``rewrite(u_mm, feed_scale) -> Program``: the program with corrections ``u_mm`` (K, 3) and feed factors
+        (M,) or None, as it will run.
+    cycle0_s : float or None
+        The original's planned cycle time, s (None: planned when first needed; virtual learning gives its first
+        run's, which is that plan's).
+    times0_s : ndarray (M,) or None
+        Each move's planned time in the original, s (planned when first needed).
+    """
+
+    program: Program
+    profile: MachineProfile
+    rewrite: Callable[[NDArray[np.float64], NDArray[np.float64] | None], Program]
+    cycle0_s: float | None = None
+    times0_s: NDArray[np.float64] | None = None
+
+    def _original(self) -> None:
+        from ilcnc.vcnc.plan import planned_move_times_s
+
+        self.times0_s, self.cycle0_s = planned_move_times_s(self.program, self.profile)
+
+    @property
+    def original_s(self) -> float:
+        """The original program's planned cycle time, s."""
+        if self.cycle0_s is None:
+            self._original()
+        assert self.cycle0_s is not None
+        return self.cycle0_s
+
+    def limit_s(self, feed_law: FeedLaw | None = None) -> float:
+        """The longest cycle time the corrections may give, s (with feed learning, at least its own budget's)."""
+        limit = self.original_s * (1.0 + self.profile.learning.cycle_budget_pct / 100.0)
+        return max(limit, feed_law.cycle0_s + feed_law.budget_s) if feed_law is not None else limit
+
+    def planned_s(self, program: Program) -> float:
+        """A program's cycle time on the profile's planner model, s."""
+        from ilcnc.vcnc.plan import planned_duration_s
+
+        return float(planned_duration_s(program, self.profile))
+
+    def hold(self, u_prev_mm: NDArray[np.float64], u_new_mm: NDArray[np.float64],
+             feed_scale: NDArray[np.float64] | None = None, feed_law: FeedLaw | None = None) -> CycleHold:
+        """The proposal ``u_new_mm`` with the corrections that slow the planner held back (:func:`hold_cycle_time`;
+        ``u_prev_mm``: the correction the proposal starts from). Within the budget it comes back unchanged
+        (``rounds`` 0)."""
+        from ilcnc.vcnc.plan import planned_move_times_s
+
+        if self.times0_s is None:
+            self._original()
+        assert self.times0_s is not None
+
+        def plan(u: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+            return planned_move_times_s(self.rewrite(u, feed_scale), self.profile)
+
+        return hold_cycle_time(u_prev_mm, u_new_mm, plan, self.times0_s, self.limit_s(feed_law),
+                               self.program.moves.command, self.profile.machine.servo_period_s,
+                               resolution_mm=self.profile.machine.resolution_mm)
+
+    def stop_message(self, n_held: int) -> str:
+        """Why learning stops when every correction left would be held."""
+        return (f"every correction left would slow the planner beyond learning.cycle_budget_pct"
+                f" ({self.profile.learning.cycle_budget_pct:g} % of cycle time; {plural(n_held, 'coordinate')} held)")
+
+    def over_message(self, cycle_s: float, feed_law: FeedLaw | None = None) -> str:
+        """The guard's words for a run over the budget."""
+        return f"cycle time {cycle_s:.3f} s over the budget's {self.limit_s(feed_law):.3f} s"
+
+    def note(self, what: str, cycle_s: float, motion_s: float | None = None) -> str:
+        """One note for the user: ``what`` (a program) plans ``cycle_s`` on the profile's planner against the
+        original and the limit; ``motion_s``: its log's measured motion time (:func:`motion_time_s`), s."""
+        c0 = self.original_s
+        change = f" ({cycle_s / c0 - 1.0:+.2%})" if c0 > 0 else ""
+        text = (f"{what} plans {cycle_s:.3f} s on the profile's planner ({self.profile.planner.profile}), the original"
+                f" {c0:.3f} s{change}; learning.cycle_budget_pct {self.profile.learning.cycle_budget_pct:g} % allows"
+                f" {self.limit_s():.3f} s")
+        if motion_s is not None:
+            text += f"; its log's motion took {motion_s:.3f} s"
+        return text

@@ -31,7 +31,7 @@ exceptions: ``converged`` (max error below ``learning.stop_tolerance_mm``),
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,7 +51,7 @@ from ilcnc.contour.air import (
 from ilcnc.contour.figures import ErrorFigures
 from ilcnc.errors import UnsupportedError
 from ilcnc.learning.arc_starts import arc_start_constraint, keep_arcs_valid
-from ilcnc.learning.cycle_hold import CLIP_CYCLE, hold_cycle_time
+from ilcnc.learning.cycle_hold import CLIP_CYCLE, CycleBudget, CycleHold
 from ilcnc.learning.feed import FeedLaw, FeedOutcome, move_errors_mm, move_times_s
 from ilcnc.learning.guard import LearningGuard
 from ilcnc.learning.laws import AXES, LearningLaw, cut_runs, make_law
@@ -75,8 +75,8 @@ from ilcnc.wording import plural
 
 __all__ = [
     "CLIP_ARC", "CLIP_BOUND", "CLIP_MOVE_LENGTH", "Clip", "IterationRecord", "LearnResult", "Learner", "UpdateShaper",
-    "changed_coordinates", "clip_corrections", "correctable_commands", "frozen_reasons",
-    "learn_virtual", "program_with_corrections"
+    "changed_coordinates", "clip_corrections", "correctable_commands", "cycle_budget", "frozen_reasons",
+    "hold_step", "learn_virtual", "program_with_corrections"
 ]
 
 
@@ -810,7 +810,7 @@ def learn_virtual(
                            message="the program has no G01 command to correct", best=0, frozen=frozen,
                            frozen_reasons=why,
                            air_commands=n_air, cutting=rule)
-    budget = _CycleBudget(program, profile, records[0].cycle_time_s if prog0 is program else None)
+    budget = cycle_budget(program, profile, records[0].cycle_time_s if prog0 is program else None)
     it = 0
     # learning.refine.feed: when the geometry stalls (or its step is refused twice), the next step lowers the
     # feed where the error is left (the geometry held), then the geometry learns on at the new feeds
@@ -850,13 +850,10 @@ def learn_virtual(
             # the corrections slowed the planner beyond learning.cycle_budget_pct: hold back those that did
             del sim, prog
             t0 = time.perf_counter()
-            u_held = budget.hold(u_hist[-1], u_new, f_new, feed_law)
-            held = changed_coordinates(u_new, u_held, program.command_line, CLIP_CYCLE)
-            if np.array_equal(u_held, u_hist[-1]):  # nothing left to learn within the budget
+            u_held, held, held_all, _hold = hold_step(budget, u_hist[-1], u_new, f_new, feed_law)
+            if held_all is not None:  # nothing left to learn within the budget
                 it -= 1
-                stall_msg = (f"every correction left would slow the planner beyond learning.cycle_budget_pct "
-                             f"({profile.learning.cycle_budget_pct:g} % of cycle time; {plural(len(held), 'coordinate')}"
-                             " held)")
+                stall_msg = held_all
                 if not feed_done:
                     feed_step = True
                     continue
@@ -893,7 +890,8 @@ def learn_virtual(
         if on_record:
             on_record(rec)
         if worse:
-            what = " and ".join(_grown(w, ref_stats, stats, rec, budget.limit_s(feed_law)) for w in worse)
+            what = " and ".join(budget.over_message(cycle, feed_law) if w == "cycle" else guard_.grown(w, ref_stats, stats)
+                                for w in worse)
             if feed_step:  # the feed learning ends; the geometry's outcome stands
                 feed_step, feed_done = False, True
                 status = LearnStatus.STOPPED
@@ -952,54 +950,47 @@ def learn_virtual(
                        air_commands=n_air, cutting=rule, feed=feed_out)
 
 
-def _grown(what: str, ref: Mapping[str, float], new: Mapping[str, float], rec: IterationRecord,
-           limit_s: float) -> str:
-    """One grown figure for the guard's message."""
-    if what == "cycle":
-        assert rec.cycle_time_s is not None
-        return f"cycle time {rec.cycle_time_s:.2f} s over the budget's {limit_s:.2f} s"
-    return LearningGuard.grown(what, ref, new)
+def cycle_budget(program: Program, profile: MachineProfile, cycle0_s: float | None = None) -> CycleBudget:
+    """The cycle-time budget of learning ``program`` (:class:`CycleBudget`; ``cycle0_s``: its planned cycle time
+    when known), its corrected programs written as :func:`program_with_corrections` writes them."""
+    def rewrite(u: NDArray[np.float64], feed_scale: NDArray[np.float64] | None) -> Program:
+        return program_with_corrections(program, u, profile, feed_scale=feed_scale)[1]
+
+    return CycleBudget(program, profile, rewrite, cycle0_s)
 
 
-@dataclass(slots=True)
-class _CycleBudget:
-    """``learning.cycle_budget_pct`` in one learning run (:mod:`ilcnc.learning.cycle_hold`): the original
-    program's plan, planned once when a run first leaves the budget."""
+def hold_step(budget: CycleBudget, u_prev_mm: NDArray[np.float64], u_new_mm: NDArray[np.float64],
+              feed_scale: NDArray[np.float64] | None = None, feed_law: FeedLaw | None = None
+              ) -> tuple[NDArray[np.float64], list[Clip], str | None, CycleHold]:
+    """A proposal held to the cycle-time budget, as virtual and measured learning hold it.
 
-    program: Program
-    profile: MachineProfile
-    cycle0_s: float | None  # the first run's cycle time when it is the original program's, s
-    times0_s: NDArray[np.float64] | None = None
+    Parameters
+    ----------
+    budget : CycleBudget
+        The run's budget (:func:`cycle_budget`).
+    u_prev_mm, u_new_mm : ndarray (K, 3)
+        The correction the step starts from (the best kept iteration's) and the law's proposal, mm.
+    feed_scale, feed_law : optional
+        The proposal's feed factors and the feed law (``learning.refine.feed``, virtual learning only).
 
-    def _original(self) -> None:
-        from ilcnc.vcnc.plan import planned_move_times_s
-
-        self.times0_s, self.cycle0_s = planned_move_times_s(self.program, self.profile)
-
-    def limit_s(self, feed_law: FeedLaw | None) -> float:
-        """The longest cycle time the corrections may give, s (with feed learning, at least its own budget's)."""
-        if self.cycle0_s is None:
-            self._original()
-        assert self.cycle0_s is not None
-        limit = self.cycle0_s * (1.0 + self.profile.learning.cycle_budget_pct / 100.0)
-        return max(limit, feed_law.cycle0_s + feed_law.budget_s) if feed_law is not None else limit
-
-    def hold(self, u_prev: NDArray[np.float64], u_new: NDArray[np.float64],
-             feed_scale: NDArray[np.float64] | None, feed_law: FeedLaw | None) -> NDArray[np.float64]:
-        """The proposal ``u_new`` with the corrections that slow the planner held back (:func:`hold_cycle_time`)."""
-        from ilcnc.vcnc.plan import planned_move_times_s
-
-        if self.times0_s is None:
-            self._original()
-        assert self.times0_s is not None
-
-        def plan(u: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
-            return planned_move_times_s(program_with_corrections(self.program, u, self.profile,
-                                                                 feed_scale=feed_scale)[1], self.profile)
-
-        res = hold_cycle_time(u_prev, u_new, plan, self.times0_s, self.limit_s(feed_law), self.program.moves.command,
-                              self.profile.machine.servo_period_s, resolution_mm=self.profile.machine.resolution_mm)
-        return res.corrections_mm
+    Returns
+    -------
+    corrections_mm : ndarray (K, 3)
+        The proposal, unchanged when it plans within the budget, mm.
+    clips : list of Clip
+        Every coordinate held, cause ``cycle time`` (:data:`CLIP_CYCLE`).
+    stop : str or None
+        When every correction left would be held (the result is ``u_prev_mm``): why learning stops.
+    hold : CycleHold
+        What the hold did (its planned cycle time, whether it is within the budget).
+    """
+    hold = budget.hold(u_prev_mm, u_new_mm, feed_scale, feed_law)
+    if hold.rounds == 0:
+        return u_new_mm, [], None, hold
+    held = changed_coordinates(u_new_mm, hold.corrections_mm, budget.program.command_line, CLIP_CYCLE)
+    if np.array_equal(hold.corrections_mm, u_prev_mm):
+        return hold.corrections_mm, held, budget.stop_message(len(held)), hold
+    return hold.corrections_mm, held, None, hold
 
 
 def _feed_law(program: Program, profile: MachineProfile, classes: NDArray[np.int8], time_s: NDArray[np.float64],

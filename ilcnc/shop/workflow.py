@@ -34,12 +34,15 @@ from numpy.typing import NDArray
 
 from ilcnc.errors import InputError, LogError, StateError, UsageError
 from ilcnc.fileio import inside, read_bytes, remove_stale_temporaries, same_file, write_atomic
+from ilcnc.learning.cycle_hold import motion_time_s
 from ilcnc.learning.guard import LearningGuard
 from ilcnc.learning.learner import (
     Clip,
     IterationRecord,
     Learner,
+    cycle_budget,
     frozen_reasons,
+    hold_step,
     learn_virtual,
     model_assisted_correction,
     program_with_corrections,
@@ -271,7 +274,7 @@ def _entry_json(e: IterationEntry) -> dict[str, Any]:
     shares = (e.measured_from or {}).get("error_shares_mm")
     if shares:
         out["error_shares_mm"] = shares
-    for key in ("air_error_mm", "cycle_time_s"):
+    for key in ("air_error_mm", "cycle_time_s", "log_motion_s"):
         value = (e.measured_from or {}).get(key)
         if value is not None:
             out[key] = value
@@ -662,14 +665,24 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         entry.measured_from["samples_sha256"] = log_fp
     if meas.air_stats is not None:
         entry.measured_from["air_error_mm"] = meas.air_stats.to_json()
+    # learning.cycle_budget_pct: the program that ran and the original, planned on the profile's planner model
+    budget = cycle_budget(original, profile)
+    entry.measured_from["cycle_time_s"] = cycle_ran = budget.planned_s(ran)
+    motion = motion_time_s(log.t_s, log.ref_mm) if req.log is not None else None
+    if motion is not None:
+        entry.measured_from["log_motion_s"] = motion
     best = state.best()
     # the guard of the run (halved = the gain was halved at an earlier refusal: state.gain_scale < 1)
     guard = LearningGuard(resolution_mm=profile.machine.resolution_mm, gain_scale=state.gain_scale,
                           halved=state.gain_scale < 1.0)
     worse, ref_stats = guard.compare(meas.stats, [e.stats for e in state.kept(profile_sha256=profile_sha)
                                                   if e.stats is not None and e is not entry])
+    if ref_stats is not None and cycle_ran > budget.limit_s():
+        worse.append("cycle")  # held back as far as the limiter goes, still over the budget (as virtual learning)
     entry.kept = not worse
     notes = list(meas.notes)
+    if motion is not None:  # the planned cycle time next to the one the log measured (points measure no time)
+        notes.append("cycle time: " + budget.note(f"iteration {entry.iteration}", cycle_ran, motion))
     if profile.learning.refine.feed == "on":
         notes.append("feed: learning.refine.feed lowers feeds on the virtual CNC only (learn without --log); this"
                      " measured step changes coordinates alone")
@@ -682,7 +695,8 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     n_iter = req.iterations if req.iterations is not None else profile.learning.iterations
     if worse:
         assert ref_stats is not None
-        what = " and ".join(guard.grown(w, ref_stats, meas.stats) for w in worse)
+        what = " and ".join(budget.over_message(cycle_ran) if w == "cycle" else guard.grown(w, ref_stats, meas.stats)
+                            for w in worse)
         match guard.refuse():
             case GuardVerdict.STOPPED:
                 state.status = LearnStatus.DIVERGED
@@ -728,8 +742,20 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         notes.append(f"model-assisted step: {ms.made} of {steps} virtual-CNC steps kept{why}; RMS |E(k)| measured"
                      f" {ms.predicted_rms_mm[0] * 1e3:.2f} µm, predicted "
                      + " → ".join(f"{r * 1e3:.2f}" for r in ms.predicted_rms_mm[1:]) + " µm")
-    text, _prog = program_with_corrections(original, u_new, profile)
     nxt = entry.iteration + 1
+    u_new, held, held_all, hold = hold_step(budget, u_hist[-1], u_new)  # the cycle-time budget, as virtual learning
+    clips = clips + held
+    if held_all is not None:
+        state.status = LearnStatus.STOPPED
+        state.save()
+        message = f"{held_all}: learning stopped; keep running {best.program}, the best program"
+        return _measured_outcome(req, state, LearnStatus.STOPPED, message, None, clips, notes)
+    if held or not hold.within:
+        notes.append(f"cycle-time budget: {plural(len(held), 'coordinate')} held back (clip 'cycle time'); "
+                     + budget.note(f"iteration {nxt}", hold.cycle_time_s)
+                     + ("" if hold.within else ": still over the budget, the guard will refuse its run (no correction"
+                        " left near a move the planner slowed)"))
+    text, _prog = program_with_corrections(original, u_new, profile)
     name = f"iter-{nxt:03d}{state.part['suffix']}"
     sha = state.write_file(name, text.encode("latin-1"))
     new_entry = IterationEntry(nxt, name, sha, state.write_corrections(nxt, u_new), gain_scale=state.gain_scale,
