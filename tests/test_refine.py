@@ -225,3 +225,19 @@ def test_refine_arcs_on_places_points_next_to_arcs(tmp_path):
     assert off.plan.summary()["arcs"] == 0
     assert on.plan.summary()["arcs"] > 0 and on.inserted.n_inserted > off.inserted.n_inserted
     assert on.program.n_commands == prog.n_commands + on.inserted.n_inserted
+
+
+def test_refining_from_a_log_with_blends_round_sharp_corners(tmp_path: Path) -> None:
+    """jsdc on LinuxCNC's planner (G64 without P: corners blended as far as the axes allow): where a blend takes
+    the commanded position round a corner sharper than 90°, its projection on the move falls back while the
+    control still names the move; reading the log on the refined program must not send its lines back (it did:
+    "the log goes back from line 2430 to line 2429 ... holds more than one run")."""
+    lsim = REPO / "configs" / "linuxcnc-sim.yaml"
+    src = REPO / "samples" / "jsdc.gcode"
+    code, msg = _run("simulate", src, "--profile", lsim, "--log-out", tmp_path / "run0.csv", "--json")
+    assert code == 0, msg
+    code, msg = _run("learn", src, "--profile", lsim, "--log", tmp_path / "run0.csv", "--state", tmp_path / "st",
+                     "--out", tmp_path / "o.gcode", "--refine", "--json")
+    assert code == 0, msg
+    d = json.loads(msg)
+    assert d["refined"]["inserted_lines"] > 0 and d["status"] == "stepped"

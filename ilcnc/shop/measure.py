@@ -513,6 +513,13 @@ def log_on_refined(log: AxisLog, original: Program, refined: Program, inserted: 
         ref = np.nan_to_num(np.asarray(log.ref_mm, dtype=np.float64)[split])
         f = np.einsum("ij,ij->i", ref - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
         piece[split] = [int(np.searchsorted(fr[jj], ff, side="right")) for jj, ff in zip(j.tolist(), f.tolist(), strict=True)]
+        # along a move the pieces only go forward: where a blend takes the commanded position round a corner
+        # sharper than 90°, its projection on the move falls back while the control still names the move
+        # (jsdc on LinuxCNC's planner: back from a retract's piece to the one before)
+        starts = np.flatnonzero(np.diff(np.concatenate(([-2], np.where(split, mv, -2)))) != 0)
+        for a_, b_ in zip(starts.tolist(), np.concatenate((starts[1:], [log.n_samples])).tolist(), strict=True):
+            if split[a_] and b_ - a_ > 1:
+                piece[a_:b_] = np.maximum.accumulate(piece[a_:b_])
     new_mv = np.where(ok, first[np.maximum(mv, 0)] + piece, -1)
     line = np.where(new_mv >= 0, refined.moves.line[np.maximum(new_mv, 0)], 0).astype(np.int64)
     cmd = np.where(new_mv >= 0, refined.moves.command[np.maximum(new_mv, 0)], -1).astype(np.int64)
