@@ -7,6 +7,7 @@ Usage::
     python bench/linuxcnc_loop.py --check               # exit 1 when a target is missed
     python bench/linuxcnc_loop.py PROG.ngc --refine      # refined from the first log (learn --refine, issue 18)
     python bench/linuxcnc_loop.py PROG.ngc --as-is       # without prepare's path-control edits
+    python bench/linuxcnc_loop.py PROG.ngc --q-filter 60 # the profile with learning.q_filter_hz: 60 (a copy)
 
 One run does what a shop does, on LinuxCNC's own interpreter, planner and motion controller
 (``configs/linuxcnc-sim``, time-scaled ×8):
@@ -93,12 +94,22 @@ def main() -> int:
     ap.add_argument("--refine", action="store_true", help="Refine from the first log (learn --refine).")
     ap.add_argument("--as-is", dest="as_is", action="store_true",
                     help="Run the program without linuxcnc prepare's path-control edits.")
+    ap.add_argument("--q-filter", dest="q_filter", type=float,
+                    help="learning.q_filter_hz of a copy of the profile (default: the profile's).")
     a = ap.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="ilcnc-lcnc-bench-") as tmp:
         d = a.keep or Path(tmp)
         d.mkdir(parents=True, exist_ok=True)
         part = linuxcnc_ready(a.program, d / (a.program.stem.replace(" ", "_") + ".ngc"))
+        if a.q_filter is not None:
+            import yaml
+
+            data = yaml.safe_load(a.profile.read_text())
+            data["learning"]["q_filter_hz"] = a.q_filter
+            src, a.profile = a.profile, d / f"profile-q{a.q_filter:g}.yaml"
+            a.profile.write_text(yaml.safe_dump(data, sort_keys=False))
+            print(f"profile: learning.q_filter_hz {a.q_filter:g} (a copy of {src.name})", flush=True)
         if not a.as_is:
             ready = part.with_name(part.stem + ".ready.ngc")
             prep = cli("linuxcnc", "prepare", part, "--profile", a.profile, "--ini", SIM_INI, "--out", ready)
