@@ -147,7 +147,11 @@ def _cli(*args: str):
 
 def test_simulate_reports_the_corners_in_text_and_json() -> None:
     jsdc = REPO / "samples" / "jsdc.gcode"
+    # simulate lists no corners unless asked (it plans the drawing twice more)
     res = _cli("simulate", jsdc, "--profile", PROFILE, "--json")
+    assert res.exit_code == 0, cli_output(res)
+    assert "corners" not in json.loads(res.stdout)
+    res = _cli("simulate", jsdc, "--profile", PROFILE, "--corners", "5", "--json")
     assert res.exit_code == 0, cli_output(res)
     data = json.loads(res.stdout)
     cs = data["corners"]

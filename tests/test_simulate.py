@@ -86,7 +86,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
 def test_simulate_command_writes_log_and_json(tmp_path: Path) -> None:
     out = tmp_path / "log.csv"
     r = _cli("simulate", str(OWN / "star.ngc"), "--profile", str(REPO / "configs" / "example-mill.yaml"),
-             "--log-out", str(out), "--json")
+             "--log-out", str(out), "--corners", "5", "--json")
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout)
     assert set(summary) == {"program", "samples", "cycle_time_s", "contour_error_mm", "air_error_mm", "cutting_rule", "worst",
