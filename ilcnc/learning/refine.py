@@ -242,7 +242,7 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
     # either side of it (jsdc writes one at corners and before retracts; without this they were never refined)
     repeat = (mv.kind == MOVE_LINE) & (length <= ZERO_LENGTH_MM)
     for i in range(m - 1):
-        if repeat[i] and i > 0:
+        if repeat[i]:
             continue
         j = i + 1
         while j < m - 1 and repeat[j]:

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
@@ -51,8 +51,8 @@ from ilcnc.program.model import (
 from ilcnc.program.rewrite import format_number, spelling
 from ilcnc.units import AXIS_LETTERS
 
-__all__ = ["MARKER", "InsertResult", "InsertedLine", "SkippedMove", "insert_points", "inserted_moves", "required_decimals",
-           "split_move_of"]
+__all__ = ["MARKER", "InsertResult", "InsertedLine", "SkippedMove", "insert_points", "inserted_moves", "lines_inserted",
+           "required_decimals", "same_moves", "split_move_of"]
 
 #: The trailing comment of every inserted line.
 MARKER = "ilcnc refine"
@@ -766,6 +766,28 @@ def reread(program: Program, text: str) -> Program:
     from ilcnc.program.gcode import read_gcode
 
     return read_gcode(Path(program.path), data, default_units=program.units, dialect=program.dialect)
+
+
+def same_moves(a: Program, b: Program) -> bool:
+    """Whether two programs move the tool alike: the same moves (kind, start, end, feed), bit for bit."""
+    ma, mb = a.moves, b.moves
+    return (len(ma) == len(mb) and np.array_equal(ma.kind, mb.kind) and np.array_equal(ma.start_mm, mb.start_mm)
+            and np.array_equal(ma.end_mm, mb.end_mm) and np.array_equal(ma.feed_mm_min, mb.feed_mm_min, equal_nan=True))
+
+
+def lines_inserted(text: str, before: Mapping[int, Sequence[str]],
+                   after: Mapping[int, Sequence[str]] | None = None) -> str:
+    """``text`` with whole lines put before and after some of its lines (1-based source line numbers); each new
+    line ends as the file's first line does (CRLF or LF), every other byte stays."""
+    raw = text.split("\n")
+    cr = "\r" if raw and raw[0].endswith("\r") else ""
+    after = after or {}
+    out: list[str] = []
+    for no, line in enumerate(raw, start=1):
+        out.extend(w + cr for w in before.get(no, ()))
+        out.append(line)
+        out.extend(w + cr for w in after.get(no, ()))
+    return "\n".join(out)
 
 
 def inserted_moves(program: Program, marker: str = MARKER) -> NDArray[np.bool_]:

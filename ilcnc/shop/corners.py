@@ -376,17 +376,15 @@ def tightened_text(program: Program, profile: MachineProfile, tightening: Tighte
         The text read again is not the program with those tolerances (a defect of ilcnc).
     """
     from ilcnc.errors import CorrectionError, InputError
-    from ilcnc.program.insert import reread
+    from ilcnc.program.insert import lines_inserted, reread, same_moves
     from ilcnc.vcnc.plan import planned_duration_s, profile_moves
 
     if program.dialect != "linuxcnc":
         raise InputError(program.path, None, f"a {program.dialect} program: the tighter tolerance is written as"
                                              " LinuxCNC's G64 P; insert the blocks by hand")
     settings = {s.line for s in path_settings(program)}
-    raw = program.text.split("\n")
-    eol = "\r" if raw and raw[0].endswith("\r") else ""
-    before: dict[int, str] = {}
-    after: dict[int, str] = {}
+    before: dict[int, list[str]] = {}
+    after: dict[int, list[str]] = {}
     done: list[TighterRange] = []
     skipped: list[str] = []
     for r in tightening.ranges:
@@ -395,26 +393,17 @@ def tightened_text(program: Program, profile: MachineProfile, tightening: Tighte
             skipped.append(f"lines {r.lines}: line {own[0]} sets the program's own path control")
             continue
         # ASCII only ("um"): the program's other bytes are written back as they were read
-        before[r.first_line] = (f"{r.before} ({TIGHTER_MARKER}: corners rounded within"
-                                f" {tightening.tolerance_mm * 1e3:.4g} um)")
-        after[r.last_line] = f"{r.after} ({TIGHTER_MARKER}: the program's own path control again)"
+        before[r.first_line] = [f"{r.before} ({TIGHTER_MARKER}: corners rounded within"
+                                f" {tightening.tolerance_mm * 1e3:.4g} um)"]
+        after[r.last_line] = [f"{r.after} ({TIGHTER_MARKER}: the program's own path control again)"]
         done.append(r)
-    out: list[str] = []
-    for ln, line in enumerate(raw, start=1):
-        if ln in before:
-            out.append(before[ln] + eol)
-        out.append(line)
-        if ln in after:
-            out.append(after[ln] + eol)
-    text = "\n".join(out)
+    text = lines_inserted(program.text, before, after)
     again = reread(program, text)
     mv, nv = program.moves, again.moves
-    same = len(nv) == len(mv) and np.array_equal(nv.kind, mv.kind) and np.array_equal(nv.start_mm, mv.start_mm) \
-        and np.array_equal(nv.end_mm, mv.end_mm) and np.array_equal(nv.feed_mm_min, mv.feed_mm_min, equal_nan=True)
-    if not same:
+    if not same_moves(program, again):
         raise CorrectionError(program.path, None, "the program with the tighter tolerance re-reads to other moves")
     # the re-read lines: each original line moves down by the lines inserted before it
-    shift = np.zeros(len(raw) + 2, dtype=np.int64)
+    shift = np.zeros(program.text.count("\n") + 3, dtype=np.int64)
     for ln in before:
         shift[ln:] += 1
     for ln in after:

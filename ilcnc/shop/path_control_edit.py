@@ -12,11 +12,9 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 
-import numpy as np
-
 from ilcnc.errors import InputError
-from ilcnc.program import read_program
 from ilcnc.program.comments import split_gcode_comments
+from ilcnc.program.insert import lines_inserted, reread, same_moves
 from ilcnc.program.model import Program
 from ilcnc.shop.linuxcnc_prepare import PathEdit
 
@@ -41,7 +39,6 @@ def apply_path_edits(program: Program, edits: Sequence[PathEdit]) -> str:
     """
     text = program.text
     lines = text.split("\n")
-    eol = "\r\n" if lines and lines[0].endswith("\r") else "\n"
     inserts: dict[int, list[str]] = {}
     for e in edits:
         if e.insert:
@@ -70,18 +67,12 @@ def apply_path_edits(program: Program, edits: Sequence[PathEdit]) -> str:
                              f" hand (`{e.words}`)")
         # offsets of the comment-blanked line are those of the line itself
         lines[i] = f"{body[:m.start()]}{e.words} ({MARK}){body[m.end():]}{cr}"
-    if not inserts:
-        return "\n".join(lines)
-    out: list[str] = []
-    for no, line in enumerate(lines, 1):
-        out.extend(f"{w}{eol[:-1]}" for w in inserts.get(no, ()))
-        out.append(line)
-    return "\n".join(out)
+    return lines_inserted("\n".join(lines), inserts)
 
 
 def ready_program_text(program: Program, edits: Sequence[PathEdit]) -> str:
     """:func:`apply_path_edits`, checked: the edited text, read again, moves the tool exactly as the program does
-    (the same moves, end points and feeds; only the path control between them differs).
+    (the same moves, start and end points and feeds; only the path control between them differs).
 
     Raises
     ------
@@ -89,11 +80,7 @@ def ready_program_text(program: Program, edits: Sequence[PathEdit]) -> str:
         An edit that would change a move (it names the program): nothing is written.
     """
     text = apply_path_edits(program, edits)
-    again = read_program(program.path, default_units=program.units, data=text.encode("latin-1"))
-    a, b = program.moves, again.moves
-    same = (len(a.end_mm) == len(b.end_mm) and np.array_equal(a.end_mm, b.end_mm)
-            and np.array_equal(a.kind, b.kind) and np.array_equal(a.feed_mm_min, b.feed_mm_min, equal_nan=True))
-    if not same:
+    if not same_moves(program, reread(program, text)):
         raise InputError(program.path, None, "the path-control edits would change the moves: set the path control"
                          " by hand")
     return text
