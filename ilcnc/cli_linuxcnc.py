@@ -133,7 +133,6 @@ def linuxcnc_prepare(
     program with those edits made; nothing else of it changes.
     """
     from ilcnc.fileio import same_file, write_atomic
-    from ilcnc.program import read_program
     from ilcnc.shop.linuxcnc_prepare import prepare_run
     from ilcnc.shop.path_control_edit import ready_program_text
 
@@ -148,8 +147,7 @@ def linuxcnc_prepare(
         if write_hal is not None:
             write_atomic(write_hal, res.hal, protect=inputs)
         if out is not None:
-            src = read_program(program, default_units=res.units)
-            write_atomic(out, ready_program_text(src, res.edits).encode("latin-1"), protect=inputs)
+            write_atomic(out, ready_program_text(res.source, res.edits).encode("latin-1"), protect=inputs)
     except IlcncError as exc:
         _fail(exc)
     if as_json:

@@ -131,6 +131,7 @@ class Preparation:
     record: str
     learn: str
     notes: list[str] = field(default_factory=list)
+    source: Program = field(repr=False, compare=False)  #: the program as read (prepare --out writes it edited)
 
     @property
     def changes(self) -> list[str]:
@@ -273,7 +274,7 @@ def prepare_run(program_path: str | Path, profile_path: str | Path, *, ini_path:
     return Preparation(program=program.path, profile=Path(profile_path), ini=Path(ini_path) if ini_path else None,
                        units=units, log_units=log_units, tolerance_mm=tol, startup=startup, ranges=ranges,
                        settings=settings, edits=edits, warnings=warnings, joints=joints, hal=hal,
-                       record=record, learn=learn, notes=notes)
+                       record=record, learn=learn, notes=notes, source=program)
 
 
 @dataclass(frozen=True, kw_only=True)
