@@ -17,7 +17,6 @@ back byte for byte, but its motion is refused by
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,7 +26,7 @@ from ilcnc.errors import ProgramError
 from ilcnc.program.expr import Parameters
 from ilcnc.program.gcode_flow import has_control_flow, run_control_flow
 from ilcnc.program.gcode_frame import POSITION_READING_CYCLES, WorkFrames, position_reader, turn_xy
-from ilcnc.program.gcode_lexer import MAX_NUMBER, Block, Lexer, Word
+from ilcnc.program.gcode_lexer import MAX_NUMBER, Block, Lexer, Word, detect_dialect
 from ilcnc.program.gcode_plain import classify_lines as _classify
 from ilcnc.program.gcode_plain import resolve_fast_spans
 from ilcnc.program.geometry import arc_length_mm
@@ -131,8 +130,9 @@ class _State(WorkFrames):
 
 
 class _Interpreter:
-    def __init__(self, path: Path, default_units: str, params: Parameters) -> None:
+    def __init__(self, path: Path, default_units: str, params: Parameters, dialect: str = "linuxcnc") -> None:
         self.path = path
+        self.dialect = dialect
         self.st = _State()
         if default_units == "inch":
             self.st.unit = MM_PER_INCH
@@ -215,9 +215,13 @@ class _Interpreter:
             st.spindle = abs(letters["S"].value)
         for c in gcodes:
             if c == 40:
-                # G4 dwell: needs P
-                if "P" not in letters:
+                # G4 dwell (before the block's motion, as RS274/NGC orders them): P seconds; Fanuc also X
+                tw = letters.get("P")
+                if tw is None and self.dialect == "fanuc":
+                    tw = letters.pop("X", None)
+                if tw is None:
                     raise self.error(line, "G4 dwell without a P word")
+                self.builder.add_dwell(self._dwell_s(tw, line, "G4"))
             elif c in (170, 180, 190):
                 st.plane = c // 10
             elif c in (171, 181, 191):
@@ -302,7 +306,8 @@ class _Interpreter:
         if "R" in letters and st.motion in _CYCLES:
             st.cycle_r = letters["R"].value
         if st.motion in _CYCLES and ("P" in letters or "Q" in letters):
-            st.cycle_p = letters["P"].value if "P" in letters else st.cycle_p
+            if "P" in letters:
+                st.cycle_p = self._dwell_s(letters["P"], line, f"G{st.motion / 10:g}")
             st.cycle_q = letters["Q"].value if "Q" in letters else st.cycle_q
         if st.motion in _CYCLES and (has_axis or (motion_codes and motion_codes[0] in _CYCLES)) and not axis_group0:
             self._cycle(st.motion, letters, axis_words, line)
@@ -332,6 +337,17 @@ class _Interpreter:
         if why and (at := self.builder.freeze_last()) > 0:
             self.warnings.append(f"line {line}: {why}: the G1 at line {at} ending there is never corrected")
 
+    def _dwell_s(self, word: Word, line: int, what: str) -> float:
+        """A dwell time word (G4 ``P``, Fanuc ``X``; the ``P`` of G82/G86/G89) in seconds. ``P`` is seconds
+        (LinuxCNC, grbl); in the Fanuc dialect a ``P`` without decimals is milliseconds (as
+        :mod:`ilcnc.program.carry` reads it). A negative time is refused, as LinuxCNC refuses it."""
+        v = float(word.value)
+        if not v >= 0.0:
+            raise self.error(line, f"{what} dwell with a negative time {word.letter}{v:g}")
+        if self.dialect == "fanuc" and word.letter == "P" and v.is_integer():
+            return v / 1000.0
+        return v
+
     def _path_control(self, codes: list[int], letters: dict[str, Word], line: int) -> None:
         """G61, G61.1, G64 [P] [Q]: the path control mode of the following moves (``MoveTable.blend_tol_mm``).
 
@@ -359,7 +375,9 @@ class _Interpreter:
         """Drilling cycles G73 G81 G82 G83 G85 G86 G89 in G17, as LinuxCNC executes them.
 
         Their moves are rapids and feeds along Z at the hole positions; they
-        are never corrected (drilling is not contouring).
+        are never corrected (drilling is not contouring). G82, G86 and G89 dwell
+        ``P`` at the bottom of each hole: the dwell of the move that leaves it
+        (:attr:`MoveTable.dwell_s`); ``P`` is kept for the following cycles, as in LinuxCNC.
         """
         st = self.st
         if st.plane != PLANE_XY:
@@ -370,6 +388,11 @@ class _Interpreter:
             raise self.error(line, f"canned cycle G{code / 10:g} with zero feed rate")
         if code in (730, 830) and (st.cycle_q is None or st.cycle_q <= 0):
             raise self.error(line, f"G{code / 10:g} needs a positive Q (peck depth)")
+        dwell = 0.0
+        if code in (820, 860, 890):
+            if st.cycle_p is None:
+                raise self.error(line, f"G{code / 10:g} without a P word (the dwell time at the bottom)")
+            dwell = st.cycle_p
         zw = axis_words[2]
         if zw is not None:
             st.cycle_z = zw.value
@@ -461,9 +484,11 @@ class _Interpreter:
                     rapid(x, y, clear)
             elif code == 890:
                 down(bottom)
+                self.builder.add_dwell(dwell)
                 down(clear)
             else:  # 810, 820, 860
                 down(bottom)
+                self.builder.add_dwell(dwell)
                 rapid(x, y, clear)
 
     def _polar_to_xy(self, letters: dict[str, Word], line: int) -> None:
@@ -1065,21 +1090,6 @@ def _general(lexer: Lexer, interp: _Interpreter, lines: _Lines, line_start: np.n
     return running, unsupported
 
 
-def detect_dialect(path: Path, text: str) -> str:
-    """Guess the G-code dialect: ``linuxcnc``, ``fanuc`` or ``grbl``."""
-    head = text[:20000]
-    if re.search(r"^\s*\$[A-Za-z$#]", head, re.MULTILINE):
-        return "grbl"
-    if re.search(r"^\s*[Oo]\s*(<[^>]*>|\d+)\s*(sub|call|if|while|do|repeat)", head, re.MULTILINE) or "#<" in head:
-        return "linuxcnc"
-    suffix = path.suffix.lower()
-    if suffix == ".ngc":
-        return "linuxcnc"
-    if suffix in (".gcode", ".gc", ".g"):
-        return "grbl"
-    return "fanuc"
-
-
 def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dialect: str | None = None) -> Program:
     """Read a G-code program.
 
@@ -1113,7 +1123,7 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
     params = Parameters()
     params.named.update({"_value": 0.0, "_value_returned": 0.0})  # predefined by LinuxCNC
     lexer = Lexer(p, params)
-    interp = _Interpreter(p, default_units, params)
+    interp = _Interpreter(p, default_units, params, dialect or detect_dialect(p, text))
     unsupported: tuple[int, str] | None = None
     percent_count = 0
     running = True
@@ -1125,7 +1135,7 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
     # O-words only stand in lines that are not plain blocks: look there only
     if has_control_flow("\n".join([lines[i] for i in np.flatnonzero(slow_mask)])):
         unsupported = run_control_flow(lexer, interp, text.split("\n"), line_start)
-        return _finish(p, text, interp, unsupported, default_units, dialect)
+        return _finish(p, text, interp, unsupported, default_units)
     nums = table[:, 1:9]
     # absurd numbers (overflowing to inf) go through the general lexer, which names them
     huge = np.any(np.abs(nums) > MAX_NUMBER, axis=1)
@@ -1172,17 +1182,17 @@ def read_gcode(path: str | Path, data: bytes, *, default_units: str = "mm", dial
         if interp.ended:
             running = False
             lexer.lenient = True
-    return _finish(p, text, interp, unsupported, default_units, dialect)
+    return _finish(p, text, interp, unsupported, default_units)
 
 
-def _finish(p: Path, text: str, interp: _Interpreter, unsupported: tuple[int, str] | None, default_units: str,
-            dialect: str | None) -> Program:
+def _finish(p: Path, text: str, interp: _Interpreter, unsupported: tuple[int, str] | None, default_units: str
+            ) -> Program:
     units = interp.st.units_seen or default_units
     if interp.nurbs is not None and unsupported is None:
         # LinuxCNC drops a block M2 ends (measured) and refuses a file that ends without M2 or %
         unsupported = (interp.nurbs.line, "the G5.2 NURBS block is not closed by G5.3 before the program ends")
-    dial = dialect or detect_dialect(p, text)
-    return Program(path=p, text=text, dialect=dial, units=units, moves=interp.builder.build(), name=p.stem,
-                   warnings=interp.warnings, unsupported=unsupported, span_resolver=resolve_fast_spans)
+    return Program(path=p, text=text, dialect=interp.dialect, units=units, moves=interp.builder.build(), name=p.stem,
+                   warnings=interp.warnings, unsupported=unsupported, trailing_dwell_s=interp.builder.pending_dwell_s,
+                   span_resolver=resolve_fast_spans)
 
 

@@ -22,7 +22,7 @@ from ilcnc.program.model import (
     STYLE_TRAILING_DOT,
 )
 
-__all__ = ["MAX_NUMBER", "Block", "Lexer", "Word"]
+__all__ = ["MAX_NUMBER", "Block", "Lexer", "Word", "detect_dialect"]
 
 # Letters LinuxCNC accepts as words (O is handled separately, E is not a word).
 _VALID_LETTERS = frozenset("ABCDEFGHIJKLMNPQRSTUVWXYZ")  # E: the analog channel of M66/M67/M68 (LinuxCNC)
@@ -260,3 +260,16 @@ class Lexer:
         return value, end
 
 
+def detect_dialect(path: Path, text: str) -> str:
+    """Guess the G-code dialect: ``linuxcnc``, ``fanuc`` or ``grbl``."""
+    head = text[:20000]
+    if re.search(r"^\s*\$[A-Za-z$#]", head, re.MULTILINE):
+        return "grbl"
+    if re.search(r"^\s*[Oo]\s*(<[^>]*>|\d+)\s*(sub|call|if|while|do|repeat)", head, re.MULTILINE) or "#<" in head:
+        return "linuxcnc"
+    suffix = path.suffix.lower()
+    if suffix == ".ngc":
+        return "linuxcnc"
+    if suffix in (".gcode", ".gc", ".g"):
+        return "grbl"
+    return "fanuc"

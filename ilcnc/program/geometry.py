@@ -99,8 +99,9 @@ def extents_mm(moves: MoveTable, *, program_frame: bool = True) -> NDArray[np.fl
 
 
 def feed_time_s(moves: MoveTable, rapid_mm_min: float) -> float:
-    """Cycle time at programmed feed, no acceleration (the naive estimate), s."""
+    """Cycle time at programmed feed, no acceleration (the naive estimate), s; with the dwells before the moves
+    (``moves.dwell_s``; a program's dwell after its last move is its ``trailing_dwell_s``)."""
     length = move_lengths_mm(moves)
     feed = np.where(moves.kind == MOVE_RAPID, rapid_mm_min, moves.feed_mm_min)
     feed = np.where(np.isfinite(feed) & (feed > 0), feed, rapid_mm_min)
-    return float(np.sum(length / feed) * 60.0)
+    return float(np.sum(length / feed) * 60.0 + np.sum(moves.dwell_s))

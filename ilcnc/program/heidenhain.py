@@ -63,6 +63,9 @@ Conventions
   path tolerance of the moves after it (``MoveTable.blend_tol_mm``, mm; ``T0`` is an exact
   path, stop at every corner); a ``32.1`` without ``T`` resets it to the machine's (the
   profile's) tolerance. ``32.2`` (HSC mode, rotary tolerance ``TA``) is read and ignored.
+* Cycle 9 (``CYCL DEF 9.1 DWELL 1.5``, ``V.ZEIT``, a Q parameter) and ``FUNCTION DWELL TIME`` (s) or ``REV``
+  (spindle revolutions at the last ``TOOL CALL``'s S) dwell before the next move (``MoveTable.dwell_s``; after
+  the last move: ``Program.trailing_dwell_s``); a negative time stops the interpretation with its line.
 * Runs of plain ``L`` blocks (no M word) are read with numpy; everything
   else block by block. Both give the same table.
 """
@@ -122,6 +125,7 @@ from ilcnc.program.heidenhain_lexer import (
     Run,
     Stop,
     cycle_name,
+    dwell_value,
     fast_motion,
     ffill,
 )
@@ -256,6 +260,7 @@ class _Interp:
         self.stack: list[list[int]] = []
         self.pending: list | None = None
         self.pending_tol = BLEND_PROFILE  # path tolerance when the held move was programmed
+        self.dwell_s = 0.0  # dwell met since the last move (after the held one): the next move's, s
         self.tol = BLEND_PROFILE  # cycle 32 tolerance (MoveTable.blend_tol_mm), mm
         self.corner: tuple[str, float, float, int] | None = None
         self.appr: tuple | None = None
@@ -317,6 +322,7 @@ class _Interp:
             if self.corner is None and self.pending is not None:
                 self.add(self.pending, self.pending_tol)
             self.pending = None
+            self.flush_dwell()
         self.cycle_warnings()
 
     def control_state(self) -> tuple:
@@ -356,6 +362,7 @@ class _Interp:
         if self.pending is not None:
             self.add(self.pending, self.pending_tol)
             self.pending = None
+        self.flush_dwell()
 
     def warn(self, key: str, text: str) -> None:
         if key not in self.warned:
@@ -429,6 +436,7 @@ class _Interp:
         if self.pending is not None:
             self.add(self.pending, self.pending_tol)
             self.pending = None
+        self.flush_dwell()
         for p in pre:
             self.add(p)
         if hold:
@@ -438,6 +446,28 @@ class _Interp:
             self.add(r)
         self.last = r
         self.pos = list(r[R_END])
+
+    def flush_dwell(self) -> None:
+        """Hand the dwell met since the last move to the table (the next move's ``dwell_s``; after the last move:
+        the trailing dwell). Called once the held move, which the dwell follows, is in the table."""
+        if self.dwell_s:
+            self.b.add_dwell(self.dwell_s)
+            self.dwell_s = 0.0
+
+    def dwell(self, value: Any, line: int, what: str, per_rev: bool = False) -> None:
+        """A dwell of ``value`` seconds (``per_rev``: spindle revolutions) before the next move."""
+        if value is None:
+            raise Stop(line, f"{what} without a dwell time")
+        t = self.num(value, line)
+        if t < 0.0:
+            raise Stop(line, f"{what} with a negative dwell time {t:g}")
+        if per_rev:
+            if not self.spindle > 0.0:
+                self.warn(f"rev{line}", f"line {line}: {what}: a dwell in spindle revolutions without a known spindle"
+                                        " speed is not modelled (no stand-still)")
+                return
+            t *= 60.0 / self.spindle
+        self.dwell_s += t
 
     def check_frame(self, line: int) -> None:
         if self.frame:
@@ -610,6 +640,8 @@ class _Interp:
             self.add(self.pending, self.pending_tol)
             self.pending = None
         self.feed = float(feed[-1])
+        if m:
+            self.flush_dwell()
         self.rcomp = RCOMP_NAME[int(rcomp[-1])]
         if m == 0:
             return None
@@ -1202,6 +1234,8 @@ class _Interp:
             return None
         if num == 7:
             self.datum_shift(data, line)
+        elif num == 9 and sub == 1:
+            self.dwell(data, line, "cycle 9 DWELL TIME")
         elif num == 32 and sub == 1:
             # tolerance for the following moves; 32.1 without T resets it to the machine's
             self.tol = BLEND_PROFILE if data is None else max(self.num(data, line), 0.0) * self.unit
@@ -1372,7 +1406,11 @@ class _Interp:
                 else:
                     self.frame["tcpm"] = (line, "FUNCTION TCPM (tool centre point management)")
                 return None
-            if tokens and tokens[0] in ("DWELL", "FEED"):
+            if tokens and tokens[0] == "DWELL":
+                rest = " ".join(tokens[1:])
+                self.dwell(dwell_value(rest), line, "FUNCTION DWELL", per_rev=rest.startswith("REV"))
+                return None
+            if tokens and tokens[0] == "FEED":
                 return None
             raise Stop(line, f"FUNCTION {' '.join(tokens[:2])} is not modelled")
         if name == "TRANS DATUM":
@@ -1448,6 +1486,7 @@ def read_heidenhain(path: Path, data: bytes) -> Program:
     return Program(
         path=path, text=text, dialect="heidenhain", units="inch" if unit_word == "INCH" else "mm", moves=moves,
         name=name, warnings=warnings, unsupported=interp.unsupported, unmodelled=unmodelled,
+        trailing_dwell_s=interp.b.pending_dwell_s,
     )
 
 

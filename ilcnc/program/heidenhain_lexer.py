@@ -66,6 +66,7 @@ __all__ = [
     "Stop",
     "block_number_lines",
     "cycle_name",
+    "dwell_value",
     "fast_motion",
     "ffill"
 ]
@@ -228,6 +229,18 @@ def block_number_lines(text: str) -> np.ndarray:
 def _comment_free(s: str) -> str:
     """The block text without its ``;`` comments (which end at ``~``)."""
     return re.sub(r";[^~\n]*", "", s)
+
+
+def dwell_value(text: str) -> Any:
+    """The time of a dwell block (``CYCL DEF 9.1 DWELL 1.5``, ``V.ZEIT 1.5``, ``TIME5``, ``Q5``; ``FUNCTION DWELL
+    TIME 1.5``): the first value after an optional name, a number or a Q closure (s); None when there is none."""
+    body = _comment_free(text)
+    m = re.match(r"[ \t]*(?:(?!Q[ \t]*\d)[A-Z][A-Z.]*[ \t]*)?", body)
+    try:
+        got = scan_value(body, m.end() if m is not None else 0)
+    except FormulaSyntaxError:
+        return None
+    return None if got is None or isinstance(got[0], str) else got[0]
 
 
 class KlartextLexer:
@@ -768,6 +781,8 @@ class KlartextLexer:
             data = self.cycle_words(num, rest)
         elif sub == 1 and num == 32:
             data = self.tolerance_word(rest)
+        elif sub == 1 and num == 9:
+            data = dwell_value(rest)
         elif sub is not None and sub >= 1 and num == 8:
             axes = _comment_free(rest).split()
             for a in axes:

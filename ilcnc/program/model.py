@@ -166,9 +166,15 @@ class MoveTable:
         XY rotation of the move's work system, degrees (G-code ``G10 L2 P.. R``; 0 for none): program
         coordinates are turned by it about the work origin before ``offset_mm`` is added (see the
         module docstring). Arcs in a rotated system are in the XY plane (the reader refuses others).
+    dwell_s : float64 (M,)
+        Stand-still programmed before the move, s: the dwells (G-code ``G4 P``, the bottom dwell of
+        ``G82``/``G86``/``G89``, Klartext cycle 9 and ``FUNCTION DWELL``) met between the previous move and
+        this one, summed; 0 where none. The control stops at the end of the previous move and waits that
+        long before it starts this one (how the planners model it: :mod:`ilcnc.vcnc.plan`, section
+        "Dwells"). A dwell after the last move is :attr:`Program.trailing_dwell_s`.
 
-    ``blend_tol_mm``, ``block_time_s`` and ``rotation_deg`` may be left out when a table is built
-    (NaN for every move: no path control, no inverse time; 0: no rotation).
+    ``blend_tol_mm``, ``block_time_s``, ``rotation_deg`` and ``dwell_s`` may be left out when a table is
+    built (NaN for every move: no path control, no inverse time; 0: no rotation, no dwell).
     """
 
     kind: NDArray[np.int8]
@@ -197,6 +203,7 @@ class MoveTable:
     blend_tol_mm: NDArray[np.float64] = None  # type: ignore[assignment]  # NaN-filled when left out
     block_time_s: NDArray[np.float64] = None  # type: ignore[assignment]  # NaN-filled when left out
     rotation_deg: NDArray[np.float64] = None  # type: ignore[assignment]  # zero-filled when left out
+    dwell_s: NDArray[np.float64] = None  # type: ignore[assignment]  # zero-filled when left out
 
     def __post_init__(self) -> None:
         m = int(self.kind.shape[0])
@@ -206,6 +213,8 @@ class MoveTable:
             self.block_time_s = np.full(m, np.nan)
         if self.rotation_deg is None:
             self.rotation_deg = np.zeros(m)
+        if self.dwell_s is None:
+            self.dwell_s = np.zeros(m)
 
     def __len__(self) -> int:
         return int(self.kind.shape[0])
@@ -245,28 +254,50 @@ class MoveTableBuilder:
     Readers call :meth:`add` once per motion block; list appends are the cheapest
     way to grow in CPython, and one ``np.array`` per column at the end keeps the
     reader fast on programs with hundreds of thousands of blocks.
+
+    A dwell is recorded with :meth:`add_dwell` when the reader meets it: it waits (summed with any
+    other dwell met before the next move) and becomes the :attr:`MoveTable.dwell_s` of the next move
+    added, by :meth:`add` or as the first row of :meth:`add_table`. What no move followed is
+    :attr:`pending_dwell_s` after :meth:`build` (a reader hands it on as
+    :attr:`Program.trailing_dwell_s`).
     """
 
-    __slots__ = ("_chunks", "_cols", "n_commands")
+    __slots__ = ("_chunks", "_cols", "_dwell", "n_commands")
 
     _NAMES = (
         "kind", "line", "start", "end", "center", "offset", "plane", "turns", "feed",
         "unit", "command", "flags", "wstart", "wend", "wdec", "wstyle", "winc",
-        "cstart", "cend", "cdec", "cstyle", "cinc", "insert_at", "blend_tol", "block_time", "rotation",
+        "cstart", "cend", "cdec", "cstyle", "cinc", "insert_at", "blend_tol", "block_time", "rotation", "dwell",
     )
 
     def __init__(self) -> None:
         self._cols: dict[str, list] = {name: [] for name in self._NAMES}
         self._chunks: list[MoveTable] = []
+        self._dwell = 0.0
         self.n_commands = 0
+
+    def add_dwell(self, seconds: float) -> None:
+        """Record a dwell of ``seconds`` (>= 0, s) before the next move added (summed with the dwells already
+        waiting for it)."""
+        self._dwell += float(seconds)
+
+    @property
+    def pending_dwell_s(self) -> float:
+        """Dwell recorded since the last move added, s (after the program's last move: its trailing dwell)."""
+        return self._dwell
 
     def add_table(self, table: MoveTable) -> None:
         """Append a whole block of moves at once (vectorised readers).
 
         ``table.command`` must already hold the right command indices
-        (continuing from :attr:`n_commands`); the count is advanced here.
+        (continuing from :attr:`n_commands`); the count is advanced here. A
+        waiting dwell (:meth:`add_dwell`) goes to the table's first move.
         """
         self._flush()
+        if self._dwell and len(table):
+            table.dwell_s = table.dwell_s.copy()
+            table.dwell_s[0] += self._dwell
+            self._dwell = 0.0
         self._chunks.append(table)
         self.n_commands += int(np.count_nonzero(table.command >= 0))
 
@@ -308,7 +339,8 @@ class MoveTableBuilder:
         """Append one move; returns its command index k, or -1 if not a command.
 
         ``blend_tol``, ``block_time`` and ``rotation`` are :attr:`MoveTable.blend_tol_mm` (mm),
-        :attr:`MoveTable.block_time_s` (s) and :attr:`MoveTable.rotation_deg` (degrees) of the move.
+        :attr:`MoveTable.block_time_s` (s) and :attr:`MoveTable.rotation_deg` (degrees) of the move; its
+        :attr:`MoveTable.dwell_s` is the dwell waiting for it (:meth:`add_dwell`).
         """
         c = self._cols
         k = -1
@@ -341,6 +373,8 @@ class MoveTableBuilder:
         c["blend_tol"].append(blend_tol)
         c["block_time"].append(block_time)
         c["rotation"].append(rotation)
+        c["dwell"].append(self._dwell)
+        self._dwell = 0.0
         return k
 
     def uncommand_last(self) -> bool:
@@ -426,6 +460,7 @@ class MoveTableBuilder:
             blend_tol_mm=np.array(c["blend_tol"], dtype=np.float64),
             block_time_s=np.array(c["block_time"], dtype=np.float64),
             rotation_deg=np.array(c["rotation"], dtype=np.float64),
+            dwell_s=np.array(c["dwell"], dtype=np.float64),
         )
 
 
@@ -448,13 +483,17 @@ class Program:
     name : str
         Program name (Klartext ``BEGIN PGM name``; G-code: the file stem).
     warnings : list of str
-        Things read but not modelled (e.g. a dwell), one line each.
+        Things read but not modelled, one line each.
     unsupported : (int, str) or None
         Line and problem where the interpretation stopped (a construct it does not model).
     unmodelled : (int, str) or None
         Line and problem of motion that was read in full but is not modelled (a Klartext cycle's own motion):
         the program may be inspected, copied and rewritten, never simulated or learned
         (:meth:`require_modelled`).
+    trailing_dwell_s : float
+        Dwell programmed after the last move, s (0 for none): the machine stands still that long before the
+        program ends. The dwells before moves are :attr:`MoveTable.dwell_s`; the planners add this one at the
+        end of the reference, so cycle times include it.
     """
 
     path: Path
@@ -466,6 +505,7 @@ class Program:
     warnings: list[str] = field(default_factory=list)
     unsupported: tuple[int, str] | None = None
     unmodelled: tuple[int, str] | None = None
+    trailing_dwell_s: float = 0.0
     span_resolver: Callable[[Program, NDArray[np.int64]], None] | None = None
     _commands: NDArray[np.int64] | None = None
     _line_starts: NDArray[np.int64] | None = None

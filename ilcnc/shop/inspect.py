@@ -130,7 +130,7 @@ def inspect_program(path: Path, *, profile_path: Path | None = None, moves_out: 
         cycle = planned_duration_s(program, prof)
         kind = f"planned ({prof.planner.profile}, axis limits of {prof.machine.name})"
     else:
-        cycle = feed_time_s(mv, rapid)
+        cycle = feed_time_s(mv, rapid) + program.trailing_dwell_s
         kind = "feed-only (no acceleration; give --profile for the planned time)"
     return InspectReport(
         program=str(path),
@@ -143,7 +143,7 @@ def inspect_program(path: Path, *, profile_path: Path | None = None, moves_out: 
         path_length_mm=float(length.sum()),
         feed_length_mm=float(length[mv.kind != MOVE_RAPID].sum()),
         cycle_time_s=cycle,
-        feed_only_time_s=feed_time_s(mv, rapid),
+        feed_only_time_s=feed_time_s(mv, rapid) + program.trailing_dwell_s,
         cycle_time_kind=kind,
         warnings=warnings,
     )

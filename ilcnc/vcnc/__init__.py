@@ -33,10 +33,11 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'Reference', 'ReferenceChunk', 'check_limits', 'corner_zones_mm', 'plan_chunks', 'plan_moves', 'plan_program',
         'planned_duration_s', 'planned_move_times_s', 'profile_moves', 'vertex_tolerances_mm'
     ),
-    'plan_base': ('EPS_MM', 'MAX_RUN_SAMPLES', 'PlanLimits', 'check_run_length', 'move_directions', 'nominal_samples',
-                  'nominal_speed_mm_s'),
+    'plan_base': ('EPS_MM', 'MAX_RUN_SAMPLES', 'PlanLimits', 'check_run_length', 'dwell_samples', 'move_directions',
+                  'nominal_samples', 'nominal_speed_mm_s'),
     'plan_corners': ('BLEND_LENGTH_FRACTION', 'RoundingTables', 'junction_speeds', 'junction_tolerances', 'rounding_tables'),
     'plan_kernels': ('BLOCK_SAMPLES', 'arc_table', 'group_kernel', 'group_range', 'group_state'),
+    'plan_zones': ('Pieces', 'slow_zones', 'zone_pieces'),
     'plan_tp': (
         'ACC_RATIO_NORMAL', 'ACC_RATIO_TANGENTIAL', 'BLEND_DIST_FRACTION', 'GAP_CYCLES', 'KINK_RATIO',
         'LOOKAHEAD_SEGMENTS', 'MIN_SEGMENT_CYCLES', 'TOLERANCE_RATIO', 'plan_linuxcnc'

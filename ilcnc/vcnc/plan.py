@@ -78,6 +78,18 @@ The ideal interpolator's last tick is at the group's end, and a total time
 within float noise (relative 1e-9) of a whole number of periods is that many
 ticks, so one block per period gives one sample per block.
 
+Dwells
+------
+A dwell (``MoveTable.dwell_s``: ``G4 P``, the bottom dwell of ``G82``/``G86``/``G89``, Klartext cycle 9) is
+reached from a stop: the move before it ends a group (the filters bring the axes to rest), and the stand-still
+before the next group is the in-position wait (``planner.in_position_s``, as between rapids and feed moves)
+plus ``round(dwell_s / period)`` samples: a control stops, checks in-position, then dwells. A dwell before the
+first move is that many samples at the start (the machine is at rest already: no in-position wait), a dwell
+after the last move (``Program.trailing_dwell_s``) the in-position wait and its samples at the end. The samples
+of a stand-still belong to the move before it (-1 before the first move), as LinuxCNC's log reads them
+(:mod:`ilcnc.vcnc.plan_tp`). So cycle times (:func:`planned_duration_s`) include the dwells; a program without
+one plans as before, sample for sample.
+
 Performance
 -----------
 Per group, the ideal interpolator, the moving averages, the running sum back
@@ -121,9 +133,10 @@ from ilcnc.program.model import (
     PLANE_AXES,
     MoveTable,
 )
-from ilcnc.vcnc.plan_base import EPS_MM, PlanLimits, check_run_length, move_directions, nominal_speed_mm_s
+from ilcnc.vcnc.plan_base import EPS_MM, PlanLimits, check_run_length, dwell_samples, move_directions, nominal_speed_mm_s
 from ilcnc.vcnc.plan_corners import junction_speeds, junction_tolerances, rounding_tables
 from ilcnc.vcnc.plan_kernels import BLOCK_SAMPLES, arc_table, group_kernel, group_range, group_state
+from ilcnc.vcnc.plan_zones import Pieces, slow_zones, zone_pieces
 
 __all__ = [
     "Reference", "ReferenceChunk", "check_limits", "corner_zones_mm", "plan_chunks", "plan_moves", "plan_program",
@@ -144,10 +157,6 @@ _TICK_SLACK = 1e-9
 #: A junction whose turn alone would round the path by at most this fraction of its tolerance is a point on a
 #: line, not a corner (:func:`_corner_limits`).
 _OWN_TURN = 0.01
-
-
-_Pieces = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64],
-                NDArray[np.float64], NDArray[np.float64]]
 
 
 @dataclass(slots=True)
@@ -209,11 +218,13 @@ _PROFILE_PATH_CONTROL = {"g64": BLEND_NO_BOUND, "g61": BLEND_EXACT_PATH, "g61.1"
 PLANNER_PROFILES = ("seven_phase", "cubic", "constant_feed", "linuxcnc")
 
 
-def _plan_linuxcnc(moves: MoveTable, limits: PlanLimits, period_s: float, corner_tolerance_mm: float) -> Reference:
+def _plan_linuxcnc(moves: MoveTable, limits: PlanLimits, period_s: float, corner_tolerance_mm: float,
+                   trailing_dwell_s: float = 0.0) -> Reference:
     """:func:`ilcnc.vcnc.plan_tp.plan_linuxcnc` as a :class:`Reference`."""
     from ilcnc.vcnc.plan_tp import plan_linuxcnc
 
-    pos, mv, speed = plan_linuxcnc(moves, limits, period_s, corner_tolerance_mm=corner_tolerance_mm)
+    pos, mv, speed = plan_linuxcnc(moves, limits, period_s, corner_tolerance_mm=corner_tolerance_mm,
+                                   trailing_dwell_s=trailing_dwell_s)
     on = mv >= 0
     safe = np.maximum(mv, 0)
     return Reference(period_s, pos, mv, np.where(on, moves.command[safe], -1).astype(np.int32),
@@ -234,7 +245,13 @@ def plan_program(program: object, profile: MachineProfile, *, mode: str | None =
         corner_tolerance_mm=profile.planner.corner_tolerance_mm,
         jerk_time_constant_s=profile.planner.jerk_time_constant_s,
         in_position_s=profile.planner.in_position_s,
+        trailing_dwell_s=_trailing_dwell_s(program),
     )
+
+
+def _trailing_dwell_s(program: object) -> float:
+    """The program's dwell after its last move, s (:attr:`ilcnc.program.model.Program.trailing_dwell_s`)."""
+    return float(getattr(program, "trailing_dwell_s", 0.0))
 
 
 def plan_moves(
@@ -247,6 +264,7 @@ def plan_moves(
     jerk_time_constant_s: float = 0.01,
     in_position_s: float = IN_POSITION_S,
     max_passes: int = 12,
+    trailing_dwell_s: float = 0.0,
 ) -> Reference:
     """Plan the reference trajectory of a move table.
 
@@ -269,13 +287,17 @@ def plan_moves(
         Stand-still between a rapid group and a feed group (in-position check), s.
     max_passes : int
         Re-planning passes allowed to remove limit violations per group.
+    trailing_dwell_s : float
+        Dwell after the last move, s (``Program.trailing_dwell_s``; the dwells before moves are ``moves.dwell_s``):
+        module docstring, "Dwells".
     """
     return _plan(moves, limits, period_s, mode, corner_tolerance_mm, jerk_time_constant_s, in_position_s, max_passes,
-                 kernel=HAVE_NUMBA)
+                 kernel=HAVE_NUMBA, trailing_dwell_s=trailing_dwell_s)
 
 
 def _plan(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corner_tolerance_mm: float,
-          jerk_time_constant_s: float, in_position_s: float, max_passes: int, *, kernel: bool) -> Reference:
+          jerk_time_constant_s: float, in_position_s: float, max_passes: int, *, kernel: bool,
+          trailing_dwell_s: float = 0.0) -> Reference:
     """:func:`plan_moves`; ``kernel=False`` takes the numpy path (the reference the compiled kernel is checked against).
 
     Every group is written straight into the reference's position array, sized from the speeds before
@@ -287,7 +309,7 @@ def _plan(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corn
     if mode not in PLANNER_PROFILES:
         raise ValueError(f"unknown planner profile {mode!r}")
     if mode == "linuxcnc":
-        return _plan_linuxcnc(moves, limits, period_s, corner_tolerance_mm)
+        return _plan_linuxcnc(moves, limits, period_s, corner_tolerance_mm, trailing_dwell_s)
     m = len(moves)
     if m == 0:
         speed = nominal_speed_mm_s(moves, move_lengths_mm(moves), limits)
@@ -295,18 +317,21 @@ def _plan(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corn
                          np.zeros(0, np.int32), speed)
     length, speed, geo, setups = _group_setups(moves, limits, period_s, mode, corner_tolerance_mm,
                                                jerk_time_constant_s)
-    hold = max(_HOLD_SAMPLES, math.ceil(in_position_s / period_s))
     # stand still between groups: an in-position check after rapids (and before them) as CNCs
     # do, so the drives settle before the next group; it also keeps the finite differences of one
-    # group's end and the next one's start apart; no stand-still after the last group
-    est = 1 + sum(g.first_size for g in setups) + hold * max(len(setups) - 1, 0)
+    # group's end and the next one's start apart; no stand-still after the last group. A dwell adds its
+    # samples to the stand-still where it sits (_stand_stills)
+    lead, stills = _stand_stills(moves, setups, max(_HOLD_SAMPLES, math.ceil(in_position_s / period_s)), period_s,
+                                 trailing_dwell_s)
+    est = 1 + lead + sum(g.first_size for g in setups) + sum(stills)
     # slack for groups re-planned slower (pages never written are never mapped: it costs no memory)
     buf = np.empty((est + est // 64 + _SLACK_ROWS, 3))
     buf[0] = moves.start_mm[0]
     run_move: list[NDArray[np.int64]] = [np.array([-1], dtype=np.int64)]
-    run_count: list[NDArray[np.int64]] = [np.ones(1, dtype=np.int64)]
+    run_count: list[NDArray[np.int64]] = [np.full(1, 1 + lead, dtype=np.int64)]
+    buf[1:1 + lead] = buf[0]
     final_speed = speed.copy()
-    at = 1
+    at = 1 + lead
     for gi, g in enumerate(setups):
         plan_group = _plan_group_kernel if kernel and compiled_for(g.first_size) else _plan_group_numpy
         buf, n_out, moves_g, counts_g, used = plan_group(moves, geo, g, length, limits, period_s, mode, max_passes,
@@ -315,7 +340,8 @@ def _plan(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corn
         run_move.append(moves_g)
         run_count.append(counts_g)
         at += n_out
-        if gi < len(setups) - 1:
+        hold = stills[gi]
+        if hold:
             buf = _reserve(buf, at + hold)
             buf[at:at + hold] = buf[at - 1]
             run_move.append(moves_g[-1:])
@@ -412,11 +438,11 @@ def _profile_pieces(program: object, profile: MachineProfile, chunk: int, mode: 
     if mode == "linuxcnc":
         # planned whole (its look-ahead and corners are sequential), handed out as one piece
         ref = _plan_linuxcnc(moves, PlanLimits.from_profile(profile), profile.machine.servo_period_s,
-                             profile.planner.corner_tolerance_mm)
+                             profile.planner.corner_tolerance_mm, _trailing_dwell_s(program))
         return moves, iter([(ref.pos_mm, ref.move)])
     pieces = _plan_pieces(moves, PlanLimits.from_profile(profile), profile.machine.servo_period_s, mode,
                           profile.planner.corner_tolerance_mm, profile.planner.jerk_time_constant_s,
-                          profile.planner.in_position_s, 12, chunk)
+                          profile.planner.in_position_s, 12, chunk, _trailing_dwell_s(program))
     return moves, pieces
 
 
@@ -462,7 +488,7 @@ def corner_zones_mm(program: object, profile: MachineProfile) -> tuple[NDArray[n
     """Length of the slow zone the planner gives each move at its start and at its end, mm (first pass).
 
     The ideal interpolator runs a zone of ``v_corner * span`` before and after a corner at the corner
-    speed (:func:`_pieces`); the filters then round the corner within it. A point inserted on a move
+    speed (:func:`ilcnc.vcnc.plan_zones.zone_pieces`); the filters then round the corner within it. A point inserted on a move
     farther from the corner than that zone (and, where the program sets the tolerance, farther than four
     tolerances: the quarter-move bound) leaves the plan as it was: the zone stays inside the piece next
     to the corner, and the new junction is straight, so it has no zone. Re-planning passes that lower
@@ -479,7 +505,7 @@ def corner_zones_mm(program: object, profile: MachineProfile) -> tuple[NDArray[n
                                                   profile.machine.servo_period_s, pl.profile, pl.corner_tolerance_mm,
                                                   pl.jerk_time_constant_s)
     for g in setups:
-        _v_in, _v_out, z_in[g.idx], z_out[g.idx] = _zones(g.v, g.vj, g.span_s)
+        _v_in, _v_out, z_in[g.idx], z_out[g.idx] = slow_zones(g.v, g.vj, g.span_s)
     return z_in, z_out
 
 
@@ -499,7 +525,7 @@ def vertex_tolerances_mm(program: object, profile: MachineProfile) -> tuple[NDAr
     active = (length > _EPS) | (hold_s > 0.0)
     geo = _Geometry(*move_directions(moves), arc_sweep_rad(moves))
     default = profile.planner.corner_tolerance_mm
-    for g0, g1 in _groups(moves.kind, active):
+    for g0, g1 in _groups(moves.kind, active, moves.dwell_s):
         idx = np.arange(g0, g1)
         idx = idx[active[idx]]
         if idx.size < 2:
@@ -524,7 +550,7 @@ def _group_setups(moves: MoveTable, limits: PlanLimits, period_s: float, mode: s
     active = (length > _EPS) | (hold_s > 0.0)
     geo = _Geometry(*move_directions(moves), arc_sweep_rad(moves))
     setups = []
-    for g0, g1 in _groups(moves.kind, active):
+    for g0, g1 in _groups(moves.kind, active, moves.dwell_s):
         idx = np.arange(g0, g1)
         idx = idx[active[idx]]
         if idx.size:
@@ -538,8 +564,8 @@ def _runs_to_samples(run_move: NDArray[np.int64], run_count: NDArray[np.int64]) 
 
 
 def _plan_pieces(moves: MoveTable, limits: PlanLimits, period_s: float, mode: str, corner_tolerance_mm: float,
-                 jerk_time_constant_s: float, in_position_s: float, max_passes: int, chunk: int
-                 ) -> Iterator[tuple[NDArray[np.float64], NDArray[np.int32]]]:
+                 jerk_time_constant_s: float, in_position_s: float, max_passes: int, chunk: int,
+                 trailing_dwell_s: float = 0.0) -> Iterator[tuple[NDArray[np.float64], NDArray[np.int32]]]:
     """The samples of :func:`_plan` as consecutive pieces ``(pos_mm, move)`` of at most about ``chunk`` rows
     (a group shorter than a chunk comes whole)."""
     m = len(moves)
@@ -547,8 +573,9 @@ def _plan_pieces(moves: MoveTable, limits: PlanLimits, period_s: float, mode: st
         return
     length, _speed, geo, setups = _group_setups(moves, limits, period_s, mode, corner_tolerance_mm,
                                                 jerk_time_constant_s)
-    hold = max(_HOLD_SAMPLES, math.ceil(in_position_s / period_s))
-    yield moves.start_mm[0][None, :].copy(), np.full(1, -1, dtype=np.int32)
+    lead, stills = _stand_stills(moves, setups, max(_HOLD_SAMPLES, math.ceil(in_position_s / period_s)), period_s,
+                                 trailing_dwell_s)
+    yield np.repeat(moves.start_mm[0][None, :], 1 + lead, axis=0), np.full(1 + lead, -1, dtype=np.int32)
     for gi, g in enumerate(setups):
         compiled = compiled_for(g.first_size)  # a small group in a Python run: the numpy path (ilcnc._jit)
         if compiled and g.first_size > chunk:
@@ -560,8 +587,8 @@ def _plan_pieces(moves: MoveTable, limits: PlanLimits, period_s: float, mode: st
                                                               max_passes, np.empty((g.first_size + 16, 3)), 0)
             last_row, last_move = buf[n_out - 1].copy(), int(moves_g[-1])
             yield buf[:n_out], _runs_to_samples(moves_g, counts_g)
-        if gi < len(setups) - 1:  # the stand-still between groups (see _plan)
-            yield np.repeat(last_row[None, :], hold, axis=0), np.full(hold, last_move, dtype=np.int32)
+        if stills[gi]:  # the stand-still after the group (see _plan)
+            yield np.repeat(last_row[None, :], stills[gi], axis=0), np.full(stills[gi], last_move, dtype=np.int32)
 
 
 @dataclass(slots=True)
@@ -574,7 +601,7 @@ class _GroupPass:
     start: NDArray[np.float64]
     lens: NDArray[np.int64]
     extra: int
-    pieces: _Pieces
+    pieces: Pieces
     n: int
     t_end: NDArray[np.float64]
     total: float
@@ -629,7 +656,7 @@ def _replan_group(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: NDAr
         lo_s, hi_s = _violation_window(bad, extra + 3, n + 1)
         lo_g, hi_g = (np.where(x > 0, np.searchsorted(cum, x - 1, side="right"), 0) for x in (lo_s, hi_s))
         scale[_slower_moves(lo_g, hi_g, idx.shape[0], g.chain)] *= 0.8
-        pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold, g.chain)
+        pieces = zone_pieces(length[idx], v * scale, vj, g.span_s, g.hold, g.chain)
     return _GroupPass(gs, ge, arcs, start, lens, extra, pieces, n, t_end, total, counts, scale, thr_a, thr_j)
 
 
@@ -686,10 +713,40 @@ def _reserve(buf: NDArray[np.float64], size: int) -> NDArray[np.float64]:
     return grown
 
 
-def _groups(kind: NDArray[np.int8], active: NDArray[np.bool_]) -> list[tuple[int, int]]:
-    """Runs of moves planned together: rapids apart from feed moves (the machine stops between)."""
+def _stand_stills(moves: MoveTable, setups: list[_GroupSetup], hold: int, period_s: float, trailing_dwell_s: float
+                  ) -> tuple[int, list[int]]:
+    """Samples the reference stands still before the first group and after each group (module docstring, "Dwells").
+
+    After a group: ``hold`` (the in-position wait) before the next group, plus the dwells between the two
+    (``moves.dwell_s`` of the moves after the first move of this group up to the first move of the next,
+    :func:`ilcnc.vcnc.plan_base.dwell_samples`); after the last group nothing, or ``hold`` plus the dwells
+    after it and ``trailing_dwell_s`` when they last a sample or more. Before the first group: its dwells alone
+    (the machine is at rest). Without dwells: (0, [hold, ..., hold, 0]) as before dwells were modelled.
+    """
+    n = len(setups)
+    if not np.any(moves.dwell_s > 0.0) and not dwell_samples(trailing_dwell_s, period_s):
+        return 0, [hold] * (n - 1) + [0] * min(n, 1)
+    cum = np.concatenate(([0.0], np.cumsum(moves.dwell_s)))
+    firsts = [int(g.idx[0]) + 1 for g in setups]  # the dwells up to a group's first move are before it
+    bounds = np.array([0, *firsts, len(moves)])
+    spans = np.diff(cum[bounds])
+    spans[-1] += trailing_dwell_s
+    wait = dwell_samples(spans, period_s)
+    if n == 0:
+        return int(wait.sum()), []
+    stills = [hold + int(w) for w in wait[1:n]] + [hold + int(wait[n]) if wait[n] else 0]
+    return int(wait[0]), stills
+
+
+def _groups(kind: NDArray[np.int8], active: NDArray[np.bool_], dwell_s: NDArray[np.float64] | None = None
+            ) -> list[tuple[int, int]]:
+    """Runs of moves planned together: rapids apart from feed moves, and a move after a dwell (``dwell_s > 0``)
+    starts a run (the machine stops between)."""
     rapid = kind == MOVE_RAPID
-    edges = np.flatnonzero(rapid[1:] != rapid[:-1]) + 1
+    cut = rapid[1:] != rapid[:-1]
+    if dwell_s is not None:
+        cut |= dwell_s[1:] > 0.0
+    edges = np.flatnonzero(cut) + 1
     bounds = np.concatenate(([0], edges, [kind.shape[0]]))
     return [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
 
@@ -735,7 +792,7 @@ def _smooth_increments(d: NDArray[np.float64], n: int) -> NDArray[np.float64]:
     return out / n
 
 
-def _sample_ideal(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], pieces: _Pieces, period_s: float
+def _sample_ideal(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], pieces: Pieces, period_s: float
                   ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Positions of the ideal interpolator at every servo tick of a group, and the move index there."""
     plen, pspd, owner, offs, dur, mlen = pieces
@@ -921,7 +978,7 @@ class _GroupSetup:
     hold: NDArray[np.float64]
     lengths: tuple[int, ...]
     span_s: float
-    first: _Pieces
+    first: Pieces
     first_size: int
     chain: NDArray[np.int64] | None = None  # collinear chain of each move (None: every move its own)
 
@@ -947,7 +1004,7 @@ def _group_setup(moves: MoveTable, geo: _Geometry, idx: NDArray[np.int64], lengt
     v = np.minimum(v, v_move)
     span_s = sum(filt_s)
     chain = _chain_ids(join)
-    first = _pieces(length[idx], v * np.ones(idx.shape[0]), vj, span_s, hold, chain)
+    first = zone_pieces(length[idx], v * np.ones(idx.shape[0]), vj, span_s, hold, chain)
     size = _ideal_samples(first[4], period_s)[0] + sum(n - 1 for n in lengths)
     return _GroupSetup(idx, v, vj, hold, lengths, span_s, first, size, chain)
 
@@ -1017,7 +1074,7 @@ def _plan_group_numpy(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length: 
         lo_s, hi_s = _violation_window(bad, total, mv_sig.shape[0])
         scale[_slower_moves(np.searchsorted(idx, mv_sig[lo_s]), np.searchsorted(idx, mv_sig[hi_s]), idx.shape[0],
                             g.chain)] *= 0.8
-        pieces = _pieces(length[idx], v * scale, vj, g.span_s, g.hold, g.chain)
+        pieces = zone_pieces(length[idx], v * scale, vj, g.span_s, g.hold, g.chain)
     n_out = out.shape[0] - 1
     buf = _reserve(buf, at + n_out)
     buf[at:at + n_out] = out[1:]
@@ -1047,118 +1104,6 @@ def _plan_group_kernel(moves: MoveTable, geo: _Geometry, g: _GroupSetup, length:
     gp = _replan_group(moves, geo, g, length, limits, period_s, mode, max_passes, rows_for)
     run_move, run_count = gp.move_runs(g.idx)
     return held[0], gp.n + gp.extra, run_move, run_count, g.v * gp.scale
-
-
-def _zones(v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float
-           ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Speed entering and leaving every move (its own, or a slower junction's; a stop is no speed limit here:
-    it is a dwell) and the lengths of its slow zones at start and end, mm (``v_corner * span``)."""
-    vj_slow = np.where(vj <= 0.0, np.inf, vj)
-    v_in = np.minimum(v, np.concatenate(([np.inf], vj_slow)))
-    v_out = np.minimum(v, np.concatenate((vj_slow, [np.inf])))
-    return v_in, v_out, np.where(v_in < v, v_in * span_s, 0.0), np.where(v_out < v, v_out * span_s, 0.0)
-
-
-def _chain_zones(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float,
-                 chain: NDArray[np.int64], lens: NDArray[np.float64], spds: NDArray[np.float64]) -> None:
-    """The slow zones of collinear chains (a straight line split into moves), laid over their moves in place.
-
-    A chain's corner zones are those of the line it is: its first move's entry speed, its last move's exit
-    speed, its whole length (the same short-line rule as one move). A move of the chain takes the parts of
-    the zones that lie on it; its own speed elsewhere. So a point inserted anywhere on a line, even inside a
-    corner's slow zone, leaves the plan as it was (refinement, :mod:`ilcnc.learning.refine`). A join the planner
-    stops at (an exact stop) or slows at is not a chain join here. Moves alone in their chain keep what
-    :func:`_pieces` gave them (bit for bit).
-    """
-    n = move_len.shape[0]
-    # a join limits nothing unless the planner stops or slows there (a written point is collinear to 0.05 µm)
-    brk = np.concatenate(([True], (chain[1:] != chain[:-1]) | (vj <= 0.0) | (vj < np.minimum(v[:-1], v[1:]))))
-    zc = np.cumsum(brk) - 1
-    first = np.flatnonzero(brk)
-    last = np.concatenate((first[1:] - 1, [n - 1]))
-    multi = (last > first)[zc]
-    if not multi.any():
-        return
-    lc = np.bincount(zc, weights=move_len)
-    vj_slow = np.where(vj <= 0.0, np.inf, vj)
-    v_in_c = np.minimum(v[first], np.concatenate(([np.inf], vj_slow))[first])
-    v_out_c = np.minimum(v[last], np.concatenate((vj_slow, [np.inf]))[last])
-    zin_c = np.where(v_in_c < v[first], v_in_c * span_s, 0.0)
-    zout_c = np.where(v_out_c < v[last], v_out_c * span_s, 0.0)
-    short_c = zin_c + zout_c >= lc
-    end_slow = v_out_c <= v_in_c
-    zs = np.minimum(np.where(end_slow, zout_c, zin_c), lc)
-    zin_c = np.where(short_c, np.where(end_slow, lc - zs, zs), zin_c)
-    zout_c = np.where(short_c, np.where(end_slow, zs, lc - zs), zout_c)
-    cs = np.cumsum(move_len)
-    o = (cs - move_len) - (cs - move_len)[first][zc]
-    m = np.flatnonzero(multi)
-    ln = move_len[m]
-    z_in = np.clip(zin_c[zc[m]] - o[m], 0.0, ln)
-    z_out = np.clip(o[m] + ln - (lc[zc[m]] - zout_c[zc[m]]), 0.0, ln)
-    z_out = np.minimum(z_out, ln - z_in)
-    lens[m, 0], lens[m, 1], lens[m, 2] = z_in, ln - z_in - z_out, z_out
-    spds[m, 0] = np.minimum(v_in_c[zc[m]], v[m])
-    spds[m, 1] = v[m]
-    spds[m, 2] = np.minimum(v_out_c[zc[m]], v[m])
-
-
-def _pieces(move_len: NDArray[np.float64], v: NDArray[np.float64], vj: NDArray[np.float64], span_s: float,
-            hold_s: NDArray[np.float64] | None = None, chain: NDArray[np.int64] | None = None) -> _Pieces:
-    """Split moves into zones with their speeds: slow zones before and after each junction.
-
-    A zone long enough for the filters to finish the speed change before the
-    corner (``v_corner * span``) runs at the corner speed; the rest of the move
-    at its own speed. A move too short for both zones keeps the slower
-    junction's zone (its full length, or the move) and runs the rest at the
-    faster junction's speed. A junction whose speed is 0 (an exact stop, tolerance 0) is a
-    dwell of one filter span at the vertex: the filters then stop the axes
-    there and the path passes through the vertex exactly. A move with a stand-still
-    ``hold_s > 0`` (a zero-length inverse-time block) is one piece of speed 0 lasting that long.
-
-    Returns
-    -------
-    (length, speed, owner, offset, duration, move_length)
-        Per piece: length (mm), speed (mm/s), index of its move within the
-        group, arc length where it starts within its move, duration (s); and
-        per move its length.
-    """
-    n = move_len.shape[0]
-    stop_after = np.concatenate((vj <= 0.0, [False]))
-    v_in, v_out, zin, zout = _zones(v, vj, span_s)
-    slow = (v_in < v) | (v_out < v)
-    short = (zin + zout >= move_len) | ((span_s == 0.0) & slow)
-    lens = np.stack([zin, move_len - zin - zout, zout, np.zeros(n)], axis=1)
-    spds = np.stack([v_in, v, v_out, np.zeros(n)], axis=1)
-    # a move too short for both zones: the slower junction's zone keeps its length (the filters finish the
-    # speed change before that corner, as on a long move), the rest runs at the faster junction's speed. Not
-    # the whole move at the slower speed: that makes the plan jump with the geometry (a point moved by 1 µm
-    # that breaks a collinear chain made a 0.07 mm move before a reversal crawl for 0.3 s)
-    end_slow = v_out <= v_in
-    z_slow = np.minimum(np.where(end_slow, zout, zin), move_len)
-    rest = move_len - z_slow
-    lens[short] = 0.0
-    spds[short] = 0.0
-    i_s = np.flatnonzero(short & end_slow)
-    lens[i_s, 0], spds[i_s, 0] = rest[i_s], v_in[i_s]
-    lens[i_s, 2], spds[i_s, 2] = z_slow[i_s], v_out[i_s]
-    i_s = np.flatnonzero(short & ~end_slow)
-    lens[i_s, 0], spds[i_s, 0] = z_slow[i_s], v_in[i_s]
-    lens[i_s, 2], spds[i_s, 2] = rest[i_s], v_out[i_s]
-    if chain is not None and n > 1:
-        _chain_zones(move_len, v, vj, span_s, chain, lens, spds)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        durs = np.where(lens > 0, lens / spds, 0.0)
-    durs[:, 3] = np.where(stop_after, span_s, 0.0)
-    if hold_s is not None and np.any(hold_s > 0.0):
-        still = hold_s > 0.0
-        spds[still, 1] = 0.0
-        durs[still, 1] = hold_s[still]
-        move_len = np.where(still, 1.0, move_len)  # any length: the position is the fraction 0 of a point
-    offs = np.concatenate([np.zeros((n, 1)), np.cumsum(lens, axis=1)[:, :3]], axis=1)
-    owner = np.repeat(np.arange(n), 4).reshape(n, 4)
-    keep = durs > 0
-    return lens[keep], spds[keep], owner[keep], offs[keep], durs[keep], move_len
 
 
 def _violations(pos: NDArray[np.float64], limits: PlanLimits, period_s: float) -> NDArray[np.int64]:

@@ -21,8 +21,8 @@ from ilcnc.profile.sections import MachineProfile
 from ilcnc.program.geometry import arc_sweep_rad, move_lengths_mm
 from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
 
-__all__ = ["EPS_MM", "MAX_RUN_SAMPLES", "PlanLimits", "check_run_length", "move_directions", "nominal_samples",
-           "nominal_speed_mm_s"]
+__all__ = ["EPS_MM", "MAX_RUN_SAMPLES", "PlanLimits", "check_run_length", "dwell_samples", "move_directions",
+           "nominal_samples", "nominal_speed_mm_s"]
 
 #: Lengths below this are zero, mm.
 EPS_MM = 1e-9
@@ -118,9 +118,10 @@ MAX_RUN_SAMPLES = 1e9
 
 
 def _nominal_move_times(moves: MoveTable, profile: MachineProfile) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Each move's length (mm) and its time at the programmed feed capped by the axes' velocities (s)."""
+    """Each move's length (mm) and its time at the programmed feed capped by the axes' velocities plus the dwell
+    before it (s)."""
     length = move_lengths_mm(moves)
-    return length, length / nominal_speed_mm_s(moves, length, PlanLimits.from_profile(profile))
+    return length, length / nominal_speed_mm_s(moves, length, PlanLimits.from_profile(profile)) + moves.dwell_s
 
 
 def nominal_samples(moves: MoveTable, profile: MachineProfile) -> int:
@@ -137,18 +138,29 @@ def check_run_length(program: object, moves: MoveTable, profile: MachineProfile)
     """Refuse a program whose motion alone takes more than :data:`MAX_RUN_SAMPLES` servo periods.
 
     The bound is each move's length over its programmed feed capped by the axes' velocities
-    (:func:`nominal_speed_mm_s`), summed: the planner can only take longer. The error
-    names the longest move's line.
+    (:func:`nominal_speed_mm_s`) and its dwell (``moves.dwell_s``; the program's ``trailing_dwell_s``),
+    summed: the planner can only take longer. The error names the longest move's line.
     """
     if len(moves) == 0:
         return
     length, t = _nominal_move_times(moves, profile)
-    total_s = float(np.sum(t))
+    trailing = float(getattr(program, "trailing_dwell_s", 0.0))
+    total_s = float(np.sum(t)) + trailing
     period = profile.machine.servo_period_s
     if not total_s / period > MAX_RUN_SAMPLES:
         return
     i = int(np.argmax(t))
-    raise InputError(getattr(program, "path", None), int(moves.line[i]),
+    what = (f"a dwell of {trailing / 3600:,.1f} h follows the last move, here" if trailing > t[i] else
+            f"the longest move is here: {length[i]:,.0f} mm in {t[i] / 3600:,.1f} h"
+            + (f" with the dwell before it ({moves.dwell_s[i] / 3600:,.1f} h)" if moves.dwell_s[i] > 0 else ""))
+    raise InputError(getattr(program, "path", None), int(moves.line[-1] if trailing > t[i] else moves.line[i]),
                      f"the program's motion takes at least {total_s / 3600:,.0f} h at the profile's feeds"
                      f" ({total_s / period:.3g} servo periods, more than the {MAX_RUN_SAMPLES:.0e} a virtual run takes);"
-                     f" the longest move is here: {length[i]:,.0f} mm in {t[i] / 3600:,.1f} h")
+                     f" {what}")
+
+
+def dwell_samples(seconds: NDArray[np.float64] | float, period_s: float) -> NDArray[np.int64] | int:
+    """Servo periods a dwell of ``seconds`` (s, >= 0; scalar or array) stands still: ``round(seconds / period_s)``,
+    halves up (a dwell shorter than half a period is none)."""
+    n = np.floor(np.asarray(seconds, dtype=np.float64) / period_s + 0.5).astype(np.int64)
+    return int(n) if n.ndim == 0 else n

@@ -23,6 +23,12 @@ move as the controller does. This module plans a program the way LinuxCNC 2.9 (`
   the machine stops between rapids and feed moves (no in-position wait: the next move starts when the
   commanded one ends). Arcs (``G2``/``G3``) are followed exactly at ``sqrt(a_n·R)`` at most; a corner next to
   an arc is tangent when its kink is small, else a stop (LinuxCNC also blends lines into arcs; not modelled).
+* **Dwells** (``MoveTable.dwell_s``, ``G4 P``): LinuxCNC's task waits until the motion queue is empty
+  before it dwells, so the move before a dwell ends at a stop (never blended) and the commanded position
+  holds for ``round(dwell_s / period)`` servo periods before the next move starts (a dwell after the last
+  move: as many periods after the final stop). Those samples belong to the move before the dwell (-1 before
+  the first move), as LinuxCNC's log reads them: with the queue empty, ``motion.program-line`` is 0 and
+  the halsampler reader carries the last line forward (:mod:`ilcnc.axislog.halsampler`).
 * **Look-ahead.** The final speed of every segment is the highest from which the next
   :data:`LOOKAHEAD_SEGMENTS` segments (LinuxCNC's ``ARC_BLEND_OPTIMIZATION_DEPTH``) can still be run to a
   stop, capped by both segments' speeds and the kink speed.
@@ -52,7 +58,7 @@ from numpy.typing import NDArray
 from ilcnc._jit import njit
 from ilcnc.program.geometry import arc_sweep_rad, move_lengths_mm
 from ilcnc.program.model import MOVE_ARC_CW, MOVE_RAPID, PLANE_AXES, MoveTable
-from ilcnc.vcnc.plan_base import PlanLimits, move_directions, nominal_speed_mm_s
+from ilcnc.vcnc.plan_base import PlanLimits, dwell_samples, move_directions, nominal_speed_mm_s
 
 __all__ = ["ACC_RATIO_NORMAL", "ACC_RATIO_TANGENTIAL", "BLEND_DIST_FRACTION", "GAP_CYCLES", "KINK_RATIO",
            "LOOKAHEAD_SEGMENTS", "MIN_SEGMENT_CYCLES", "TOLERANCE_RATIO", "plan_linuxcnc"]
@@ -108,9 +114,10 @@ def _inscribed(n0: float, n1: float, n2: float, bound: NDArray[np.float64]) -> f
 
 @njit(cache=True, nogil=True)
 def _segments(start, end, length, kind, tol, rapid, vreq, t_in, t_out, arc_c, arc_ax, arc_r0, arc_r1, vlim, alim,
-              period, kink_ratio, gap_cycles):  # pragma: no cover - compiled
+              period, kink_ratio, gap_cycles, still):  # pragma: no cover - compiled
     """Segments of a move table: lines, blend arcs at corners, program arcs, with speeds, accelerations and the
-    end condition of each (module docstring). Moves of zero length are skipped."""
+    end condition of each (module docstring). Moves of zero length are skipped. ``still`` (M,): samples the
+    position holds before each move (its dwell); the move before it stops, and its first segment gets them."""
     m = start.shape[0]
     cap = 2 * m + 2
     skind = np.zeros(cap, np.int8)
@@ -127,6 +134,7 @@ def _segments(start, end, length, kind, tol, rapid, vreq, t_in, t_out, arc_c, ar
     tangent = np.zeros(cap, np.bool_)
     kink = np.full(cap, -1.0)
     owner = np.zeros(cap, np.int64)
+    hold = np.zeros(cap, np.int64)
     n = 0
     last = -1          # segment of the previous move (its end is still open)
     last_move = -1
@@ -138,6 +146,7 @@ def _segments(start, end, length, kind, tol, rapid, vreq, t_in, t_out, arc_c, ar
         s = n
         n += 1
         owner[s] = i
+        hold[s] = still[i]
         p0[s] = start[i]
         p1[s] = end[i]
         target[s] = L
@@ -163,8 +172,8 @@ def _segments(start, end, length, kind, tol, rapid, vreq, t_in, t_out, arc_c, ar
             tq = tol[last_move]
             uq = t_out[last_move]
             dot = min(1.0, max(-1.0, uq[0] * u[0] + uq[1] * u[1] + uq[2] * u[2]))
-            if tq < 0.0 or rapid[last_move] != rapid[i]:
-                tangent[q] = False                  # exact stop; a rapid and a feed move do not blend
+            if tq < 0.0 or rapid[last_move] != rapid[i] or still[i] > 0:
+                tangent[q] = False                  # exact stop; a rapid and a feed move do not blend; a dwell
             elif tq == 0.0:
                 tangent[q] = dot > 1.0 - 1e-12      # exact path: only a straight continuation
             elif dot < _REVERSAL_COS:
@@ -270,7 +279,7 @@ def _segments(start, end, length, kind, tol, rapid, vreq, t_in, t_out, arc_c, ar
         last = s
         last_move = i
     return (skind[:n], p0[:n], p1[:n], ctr[:n], e1[:n], e2[:n], rad[:n], straight[:n], target[:n], maxvel[:n],
-            acc[:n], tangent[:n], kink[:n], owner[:n])
+            acc[:n], tangent[:n], kink[:n], owner[:n], hold[:n])
 
 
 @njit(cache=True, nogil=True)
@@ -327,8 +336,10 @@ def _point(s, prog, skind, p0, p1, ctr, e1, e2, rad, straight, target, arc_move,
 
 @njit(cache=True, nogil=True)
 def _run(skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent, vf, owner, period, first,
-         arc_ax, arc_th0, arc_sgn, arc_sw, arc_r0, arc_r1, arc_dz):  # pragma: no cover - compiled
-    """Positions and segment owners at every servo period (sample 0: at rest at ``first``)."""
+         arc_ax, arc_th0, arc_sgn, arc_sw, arc_r0, arc_r1, arc_dz, hold):  # pragma: no cover - compiled
+    """Positions and segment owners at every servo period (sample 0: at rest at ``first``). ``hold[s]``: samples
+    the position stands still before segment ``s`` starts (a dwell; the previous segment ends at a stop), on
+    the move of the sample before."""
     n = target.shape[0]
     cap = 4096
     pos = np.empty((cap, 3))
@@ -340,7 +351,22 @@ def _run(skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent
     prog = 0.0
     v = 0.0
     pt = np.empty(3)
+    wait = hold[0] if n > 0 else 0
     while s < n:
+        if wait > 0:
+            if k >= cap:
+                cap *= 2
+                pos2 = np.empty((cap, 3))
+                pos2[:k] = pos[:k]
+                pos = pos2
+                mv2 = np.empty(cap, np.int64)
+                mv2[:k] = mv[:k]
+                mv = mv2
+            pos[k] = pos[k - 1]
+            mv[k] = mv[k - 1]
+            k += 1
+            wait -= 1
+            continue
         tau = period
         while tau > 0.0 and s < n:
             a = acc[s]
@@ -371,6 +397,8 @@ def _run(skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent
                 prog = 0.0
                 if stop:
                     v = 0.0
+                    if s < n:
+                        wait = hold[s]
         if k >= cap:
             cap *= 2
             pos2 = np.empty((cap, 3))
@@ -383,7 +411,7 @@ def _run(skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent
             _point(s, prog, skind, p0, p1, ctr, e1, e2, rad, straight, target, owner, arc_ax, arc_th0, arc_sgn, arc_sw,
                    arc_r0, arc_r1, arc_dz, pt)
             pos[k] = pt
-            mv[k] = owner[s]
+            mv[k] = owner[s] if wait == 0 else owner[s - 1]  # a dwell starts here: the move before's
         else:
             pos[k] = p1[n - 1]
             mv[k] = owner[n - 1]
@@ -416,7 +444,7 @@ def _arc_geometry(moves: MoveTable) -> tuple[NDArray[np.float64], ...]:
 
 
 def plan_linuxcnc(moves: MoveTable, limits: PlanLimits, period_s: float, *, corner_tolerance_mm: float = 0.0,
-                  lookahead_segments: int = LOOKAHEAD_SEGMENTS
+                  lookahead_segments: int = LOOKAHEAD_SEGMENTS, trailing_dwell_s: float = 0.0
                   ) -> tuple[NDArray[np.float64], NDArray[np.int32], NDArray[np.float64]]:
     """Plan a move table as LinuxCNC 2.9's trajectory planner does (module docstring).
 
@@ -433,6 +461,9 @@ def plan_linuxcnc(moves: MoveTable, limits: PlanLimits, period_s: float, *, corn
         Corner tolerance of moves whose program sets no path control, mm.
     lookahead_segments : int
         Segments the final-speed look-ahead spans (LinuxCNC's ``[TRAJ] ARC_BLEND_OPTIMIZATION_DEPTH``).
+    trailing_dwell_s : float
+        Dwell after the last move, s (``Program.trailing_dwell_s``): the reference stands still that long at
+        the end. The dwells before moves are ``moves.dwell_s`` (module docstring, "Dwells").
 
     Returns
     -------
@@ -445,9 +476,13 @@ def plan_linuxcnc(moves: MoveTable, limits: PlanLimits, period_s: float, *, corn
     """
     length = move_lengths_mm(moves)
     m = len(moves)
+    still = dwell_samples(moves.dwell_s, period_s)
+    tail = dwell_samples(trailing_dwell_s, period_s)
     if m == 0 or not (length > 1e-9).any():
         start = moves.start_mm[0] if m else np.zeros(3)
-        return np.asarray(start, dtype=np.float64).reshape(1, 3), np.full(1, -1, np.int32), np.zeros(m)
+        rows = 1 + (int(still.sum()) + tail if m else 0)  # only dwells: the reference stands still for them
+        return (np.repeat(np.asarray(start, dtype=np.float64).reshape(1, 3), rows, axis=0), np.full(rows, -1, np.int32),
+                np.zeros(m))
 
     t_in, t_out = move_directions(moves)
     rapid = moves.kind == MOVE_RAPID
@@ -462,12 +497,36 @@ def plan_linuxcnc(moves: MoveTable, limits: PlanLimits, period_s: float, *, corn
                      np.ascontiguousarray(moves.end_mm, dtype=np.float64), length, moves.kind.astype(np.int64), tol,
                      rapid, speed, np.ascontiguousarray(t_in), np.ascontiguousarray(t_out), c, ax, r0, r1,
                      lim_v.astype(np.float64), lim_a.astype(np.float64), float(period_s),
-                     KINK_RATIO, GAP_CYCLES)
+                     KINK_RATIO, GAP_CYCLES, _still_before_moves(still, length > 1e-9))
     live = segs[8] > 0.0
-    skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent, kink, owner = (x[live] for x in segs)
+    skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent, kink, owner = (x[live] for x in segs[:14])
+    hold = segs[14]
+    if hold.any():
+        # a segment left empty (a line run as part of the blend arc after it) hands its dwell to the next one
+        run = np.cumsum(hold)[live]
+        tail += int(hold.sum() - (run[-1] if run.size else 0))
+        hold = np.diff(run, prepend=0)
+    else:
+        hold = hold[live]
     maxvel = np.minimum(maxvel, target / (MIN_SEGMENT_CYCLES * period_s))
     vf = _final_speeds(target, maxvel, acc, tangent, kink, int(lookahead_segments))
     first = np.ascontiguousarray(moves.start_mm[int(np.flatnonzero(length > 1e-9)[0])], dtype=np.float64)
     pos, mv = _run(skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent, vf, owner,
-                   float(period_s), first, ax, th0, sgn, sweep, r0, r1, dz)
+                   float(period_s), first, ax, th0, sgn, sweep, r0, r1, dz, np.ascontiguousarray(hold, dtype=np.int64))
+    tail += int(still[int(np.flatnonzero(length > 1e-9)[-1]) + 1:].sum())
+    if tail:  # the dwells after the last move that moves: the position holds at its end
+        pos = np.concatenate((pos, np.repeat(pos[-1:], tail, axis=0)))
+        mv = np.concatenate((mv, np.full(tail, mv[-1], dtype=mv.dtype)))
     return pos, mv.astype(np.int32), speed
+
+
+def _still_before_moves(still: NDArray[np.int64], moving: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """Per move, the dwell samples before it when it moves: its own and those of the moves of zero length since the
+    last move that moved (which the segments skip); 0 for a move that does not move."""
+    if not still.any():
+        return still
+    c = np.cumsum(still)
+    at = np.flatnonzero(moving)
+    out = np.zeros_like(still)
+    out[at] = np.diff(c[at], prepend=0)
+    return out
