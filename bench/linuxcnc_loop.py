@@ -133,7 +133,10 @@ def main() -> int:
             extra = ["--refine"] if a.refine and i == 0 else []
             result = cli("learn", part, "--profile", a.profile, "--log", log, "--state", state, "--out", program, *extra)
             if i == 0 and result.get("refined"):
-                print(f"refined: {result['refined']['inserted_lines']} lines inserted", flush=True)
+                rf = result["refined"]
+                settles = (f", {rf['settles']} settles before feeds after rapids ({rf['settle_s']:.3f} s)"
+                           if rf.get("settles") else "")
+                print(f"refined: {rf['inserted_lines']} lines inserted{settles}", flush=True)
             t_learn += time.perf_counter() - t0
             it = result["iterations"][i]
             ce = it["contour_error_mm"]

@@ -1077,6 +1077,7 @@ class Refinement:
     def to_json(self) -> dict[str, Any]:
         out = self.plan.summary()
         out.update({"inserted_lines": self.inserted.n_inserted, "skipped_moves": len(self.inserted.skipped),
+                    "settled": {str(k): v for k, v in sorted(self.inserted.settled.items())},
                     "renumbered": bool(self.inserted.renumbered), "first_run_mm": dict(self.first_stats),
                     "cycle_time_s": {"original": self.cycle_time_s[0], "refined": self.cycle_time_s[1]}})
         return out
@@ -1090,6 +1091,13 @@ class Refinement:
                f" (first-run error >= {js['threshold_mm'] * 1e3:.1f}"
                f" µm); planned cycle time {self.cycle_time_s[0]:.2f} -> {self.cycle_time_s[1]:.2f} s"
                f" ({self.cycle_change:+.2%})"]
+        if self.inserted.settled:
+            total = sum(self.inserted.settled.values())
+            rapids = [str(x.line) for x in self.plan.sites if x.settle_s > 0][:8]
+            more = ", ..." if len(self.inserted.settled) > 8 else ""
+            out.append(f"refined: {plural(len(self.inserted.settled), 'settle')} (dwell) before the first feed after"
+                       f" a rapid where the axes still lag it, {total:.3f} s in all (rapids on lines"
+                       f" {', '.join(rapids)}{more})")
         for reason, n in sorted(js["passed"].items()):
             out.append(f"refine: {plural(n, 'spot')} left alone ({reason})")
         reasons: dict[str, int] = {}
@@ -1131,9 +1139,10 @@ def refine_from_errors(original: Program, profile: MachineProfile, *, dist_mm: N
     from ilcnc.vcnc.plan import plan_program
 
     _rule, classes = profile_move_classes(original, profile)
-    plan = plan_refinement(original, profile, dist_mm=dist_mm, seg=seg, u=u, classes=classes)
     t0 = float(plan_program(original, profile).duration_s) if cycle_time_s is None else float(cycle_time_s)
-    res = insert_points(original, plan.points, min_decimals=profile.min_decimals(original.units))
+    plan = plan_refinement(original, profile, dist_mm=dist_mm, seg=seg, u=u, classes=classes, cycle_time_s=t0)
+    res = insert_points(original, plan.points, min_decimals=profile.min_decimals(original.units),
+                        settles=plan.settles)
     refined = read_program(original.path, default_units=original.units, data=res.text.encode("latin-1"))
-    t1 = float(plan_program(refined, profile).duration_s) if res.n_inserted else t0
+    t1 = float(plan_program(refined, profile).duration_s) if res.changed else t0
     return Refinement(refined, plan, res, dict(first_stats), (t0, t1))

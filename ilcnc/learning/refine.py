@@ -30,10 +30,17 @@ each such spot:
   another end point (a controller runs one block per period at most; closer
   points only cost look-ahead). Inside the planner's slow zone at the corner
   too: the planner gives a straight line split into moves the zones of the
-  line (:func:`ilcnc.vcnc.plan._chain_zones`), so the refined program, uncorrected,
+  line (:mod:`ilcnc.vcnc.plan_zones`), so the refined program, uncorrected,
   plans as the original (same reference, same cycle time) and cuts what it
   cuts;
-* **cap**: more than ``max_lines`` points in a program is refused.
+* **settle** (``learning.refine.settle``): before the first feed after a
+  rapid whose first-run error is above the threshold, a dwell as long as the
+  slowest drive model takes to settle from that error to the threshold
+  (:func:`ilcnc.vcnc.settle.settle_time_s`). The error there is the rapid's
+  lag, not the feed's: no end point on the feed can take back a lag that
+  closes along the rapid's direction while the feed runs, a stop can. The
+  largest first, within ``settle_budget_pct`` of the cycle time;
+* **cap**: more than ``max_lines`` points and settles in a program is refused.
 
 The points are inserted by :func:`ilcnc.program.insert.insert_points`, which
 keeps every original line and checks that the refined program runs the same
@@ -43,7 +50,7 @@ path (within 0.05 µm per axis: the written decimals).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -79,6 +86,8 @@ class RefineSite:
         Disturbed stretch before and after the spot, mm.
     points : int
         Points placed.
+    settle_s : float
+        Dwell written before the feed (``rapid`` only; 0: none), s.
     """
 
     kind: str
@@ -86,10 +95,11 @@ class RefineSite:
     peak_mm: float
     stretch_mm: tuple[float, float]
     points: int
+    settle_s: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         return {"kind": self.kind, "line": self.line, "peak_mm": self.peak_mm,
-                "stretch_mm": list(self.stretch_mm), "points": self.points}
+                "stretch_mm": list(self.stretch_mm), "points": self.points, "settle_s": self.settle_s}
 
 
 @dataclass(slots=True)
@@ -106,9 +116,12 @@ class RefinePlan:
         The least error of a refined spot, mm.
     passed : dict of str to int
         Spots seen but left alone, by reason (``below threshold``, ``short moves``, ...).
+    settles : dict of int to float
+        Move index of a feed after a rapid -> dwell before it, s (``learning.refine.settle``).
     """
 
     points: dict[int, list[float]] = field(default_factory=dict)
+    settles: dict[int, float] = field(default_factory=dict)
     sites: list[RefineSite] = field(default_factory=list)
     threshold_mm: float = 0.0
     passed: dict[str, int] = field(default_factory=dict)
@@ -121,6 +134,7 @@ class RefinePlan:
         kinds = {k: sum(1 for s in self.sites if s.kind == k) for k in ("corner", "rapid", "arc")}
         return {"points": self.n_points, "moves_split": len(self.points), "corners": kinds["corner"],
                 "rapids": kinds["rapid"], "arcs": kinds["arc"], "threshold_mm": self.threshold_mm,
+                "settles": len(self.settles), "settle_s": float(sum(self.settles.values())),
                 "passed": dict(self.passed)}
 
 
@@ -171,8 +185,41 @@ def _distances(stretch: float, n_max: int, spacing: float, nearest: float, room:
     return out
 
 
+def _settles(plan: RefinePlan, profile: MachineProfile, rapid_feeds: list[tuple[int, int]],
+             cycle_time_s: float | None) -> None:
+    """Give the feeds after rapids their settle (:mod:`ilcnc.vcnc.settle`): from the lag the first run shows
+    there (the site's peak) down to the refine threshold, the largest lags first within the budget; a rapid
+    site left with neither points nor a settle is dropped and counted."""
+    if not rapid_feeds:
+        return
+    from ilcnc.vcnc.settle import settle_time_s
+
+    peaks = np.array([plan.sites[k].peak_mm for k, _ in rapid_feeds])
+    need = settle_time_s(profile, peaks, plan.threshold_mm)
+    budget = (profile.learning.refine.settle_budget_pct / 100.0 * cycle_time_s
+              if cycle_time_s is not None and cycle_time_s > 0 else 0.0)
+    spent = 0.0
+    for r in np.argsort(-peaks, kind="stable").tolist():
+        k, j = rapid_feeds[r]
+        t = float(need[r])
+        if t <= 0.0:
+            continue
+        if spent + t > budget + 1e-12:
+            plan.passed["settle beyond settle_budget_pct"] = plan.passed.get("settle beyond settle_budget_pct", 0) + 1
+            continue
+        spent += t
+        plan.settles[j] = t
+        plan.sites[k] = replace(plan.sites[k], settle_s=t)
+    empty = [k for k, _ in rapid_feeds if plan.sites[k].points == 0 and plan.sites[k].settle_s == 0.0]
+    if empty:
+        plan.passed["moves too short"] = plan.passed.get("moves too short", 0) + len(empty)
+        drop = set(empty)
+        plan.sites[:] = [s for k, s in enumerate(plan.sites) if k not in drop]
+
+
 def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArray[np.float64],
-                    seg: NDArray[np.int64], u: NDArray[np.float64], classes: NDArray[np.int8]) -> RefinePlan:
+                    seg: NDArray[np.int64], u: NDArray[np.float64], classes: NDArray[np.int8],
+                    cycle_time_s: float | None = None) -> RefinePlan:
     """Place the refinement points of ``program`` from its first run.
 
     Parameters
@@ -187,6 +234,9 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
         off the cut (NaN distance) are ignored.
     classes : ndarray (M,) int8
         Class of every move (:func:`ilcnc.contour.air.move_classes`): only cutting moves are refined.
+    cycle_time_s : float, optional
+        The original's planned cycle time, s: the settles may add ``learning.refine.settle_budget_pct`` of it
+        (absent: no settles).
 
     Returns
     -------
@@ -241,6 +291,7 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
     # a point the program repeats (a zero-length straight block) is one point: the corner is between the moves
     # either side of it (jsdc writes one at corners and before retracts; without this they were never refined)
     repeat = (mv.kind == MOVE_LINE) & (length <= ZERO_LENGTH_MM)
+    rapid_feeds: list[tuple[int, int]] = []  # (site index, feed move) of the rapid sites
     for i in range(m - 1):
         if repeat[i]:
             continue
@@ -249,8 +300,8 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
             j += 1
         if not np.allclose(mv.end_mm[i], mv.start_mm[j], atol=1e-6) or length[j] <= 0:
             continue
-        if mv.kind[i] == MOVE_RAPID and straight[j]:
-            kind = "rapid"
+        if mv.kind[i] == MOVE_RAPID and (straight[j] or arc[j]):
+            kind = "rapid"  # on an arc: no points, a settle only
         elif straight[i] and straight[j] and length[i] > 0:
             if float(tangent[i] @ tangent[j]) > cos_limit:
                 continue
@@ -292,12 +343,16 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
         if kind == "corner":
             near_i, room_i = spacing(i), MAX_MOVE_SHARE * length[i]
             n += place(i, _distances(st_i, cfg.points_per_side, spacing(i), near_i, room_i), True)
-        near_j = spacing(j)
-        n += place(j, _distances(st_j, cfg.points_per_side, spacing(j), near_j, room_j), False)
-        if n == 0:
+        if straight[j]:
+            near_j = spacing(j)
+            n += place(j, _distances(st_j, cfg.points_per_side, spacing(j), near_j, room_j), False)
+        if kind == "rapid" and cfg.settle == "on":
+            rapid_feeds.append((len(plan.sites), j))  # a settle may still come (_settles); decided below
+        elif n == 0:
             plan.passed["moves too short"] = plan.passed.get("moves too short", 0) + 1
             continue
         plan.sites.append(RefineSite(kind, int(mv.line[i]), peak, (st_i, st_j), n))
+    _settles(plan, profile, rapid_feeds, cycle_time_s)
     # one move may be claimed by the corners at both of its ends: keep its fractions sorted, apart
     for move, fr in claimed.items():
         fr = sorted(set(fr))
@@ -311,8 +366,9 @@ def plan_refinement(program: Program, profile: MachineProfile, *, dist_mm: NDArr
             kept.append(f)
         if kept:
             plan.points[move] = kept
-    if plan.n_points > cfg.max_lines:
-        raise InputError(program.path, None, f"refinement would insert {plan.n_points} lines, more than"
+    if plan.n_points + len(plan.settles) > cfg.max_lines:
+        raise InputError(program.path, None, f"refinement would insert {plan.n_points + len(plan.settles)} lines,"
+                         " more than"
                          f" learning.refine.max_lines = {cfg.max_lines}: raise it, or refine less"
                          " (learning.refine.corner_angle_deg, points_per_side, min_error_mm)")
     return plan

@@ -741,6 +741,13 @@ SPECS: tuple[Spec, ...] = (
        " program's cycle time (an iteration whose cycle time leaves it is refused).", "%", 0, 50, default=2.0),
     _f("learning.refine.feed_min_ratio", "Least feed the feed learning may program, as a fraction of the programmed"
        " feed.", "", 0.05, 1, default=0.25),
+    _c("learning.refine.settle", "A dwell (G-code G4, Klartext cycle 9) before the first feed after a rapid where the"
+       " first run shows the axes still lagging the rapid (the feed would start while they catch up): as long as the"
+       " slowest axis's drive model takes to settle from that lag to min_error_mm, rounded up to the servo period"
+       " (docs/learning.md). Only with refinement.", ("off", "on"), default="on"),
+    _f("learning.refine.settle_budget_pct", "Most cycle time the settles may add, % of the original program's"
+       " planned cycle time; where they would need more, the largest lags are settled first and the rest reported.",
+       "%", 0, 10, default=0.5),
     _f("learning.refine.min_spacing_periods", "Least distance of an inserted point from another end point, in servo"
        " periods of motion at the move's feed (a controller runs at most one block per period).", "", 1, 1000,
        default=3.0),

@@ -423,6 +423,10 @@ class RefineSection:
         Most extra cycle time for it, % of the original's.
     feed_min_ratio : float
         Least feed it may program, fraction of the programmed feed.
+    settle : str
+        ``"on"``: a dwell before the first feed after a rapid where the first run shows the rapid's lag.
+    settle_budget_pct : float
+        Most cycle time the settles may add, % of the original's.
     """
 
     enabled: str = default_of("learning.refine.enabled")
@@ -435,6 +439,8 @@ class RefineSection:
     feed: str = default_of("learning.refine.feed")
     feed_budget_pct: float = default_of("learning.refine.feed_budget_pct")
     feed_min_ratio: float = default_of("learning.refine.feed_min_ratio")
+    settle: str = default_of("learning.refine.settle")
+    settle_budget_pct: float = default_of("learning.refine.settle_budget_pct")
 
     def to_dict(self) -> dict[str, Any]:
         out = {k: v for k, v in vars(self).items() if v is not None}

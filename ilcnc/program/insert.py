@@ -143,6 +143,8 @@ class InsertResult:
         Decimals written for each split move (move index -> decimals).
     notes : list of str
         One-line remarks for the user (renumbering, decimals, comment syntax).
+    settled : dict of int to float
+        Move index -> dwell written before it (``settles`` of :func:`insert_points`), s.
     """
 
     text: str
@@ -154,11 +156,17 @@ class InsertResult:
     rewritten_lines: list[int] = field(default_factory=list)
     decimals: dict[int, int] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    settled: dict[int, float] = field(default_factory=dict)
 
     @property
     def n_inserted(self) -> int:
-        """Number of inserted lines."""
+        """Number of inserted points (lines that split a move; settle lines are counted in :attr:`settled`)."""
         return len(self.inserted)
+
+    @property
+    def changed(self) -> bool:
+        """Whether anything was inserted (points or settles)."""
+        return bool(self.inserted) or bool(self.settled)
 
     @property
     def split_moves(self) -> list[int]:
@@ -369,6 +377,7 @@ def insert_points(
     min_decimals: int,
     marker: str = "ilcnc refine",
     verify: bool = True,
+    settles: Mapping[int, float] | None = None,
 ) -> InsertResult:
     """Split straight feeds of ``program`` at fractions of their length by inserting lines.
 
@@ -388,6 +397,11 @@ def insert_points(
         Text of the trailing comment that marks every inserted line.
     verify : bool
         Re-read the result and check the path (recommended; raises on any difference).
+    settles : mapping of int to float, optional
+        Move index -> dwell before it, s (:mod:`ilcnc.learning.refine`'s settle after a rapid): a ``G4 P``
+        line (Fanuc ``G4 X``; Klartext cycle 9 in two blocks) placed directly before the move's line, before
+        any point of the move; whole milliseconds, rounded up. A move whose line holds other moves or runs
+        more than once is left alone and listed in :attr:`InsertResult.skipped`.
 
     Returns
     -------
@@ -409,7 +423,8 @@ def insert_points(
     want = _normalise_points(program, points)
     result = InsertResult(text=program.text)
     n_lines = program.n_lines
-    if not want:
+    settle_texts = _settle_texts(program, settles or {}, _comment(program, marker)[0], result)
+    if not want and not settle_texts:
         result.line_origin = np.arange(1, n_lines + 1, dtype=np.int32)
         result.line_inserted = np.zeros(n_lines, dtype=bool)
         return result
@@ -417,13 +432,14 @@ def insert_points(
     klartext = program.dialect == "heidenhain"
     gcode = not klartext
     idx = np.array(sorted(want), dtype=np.int64)
-    program.resolve_spans(np.arange(int(idx[-1]) + 1))
-    known = _known_axes(program, int(idx[-1]), gcode)
     comment, semi = _comment(program, marker)
-    line_counts: dict[int, int] = {}
-    for ln in mv.line[: int(idx[-1]) + 2].tolist():
-        line_counts[ln] = line_counts.get(ln, 0) + 1
     plans: dict[int, _Plan] = {}
+    if idx.size:
+        program.resolve_spans(np.arange(int(idx[-1]) + 1))
+        known = _known_axes(program, int(idx[-1]), gcode)
+        line_counts: dict[int, int] = {}
+        for ln in mv.line[: int(idx[-1]) + 2].tolist():
+            line_counts[ln] = line_counts.get(ln, 0) + 1
     for i in idx.tolist():
         line = int(mv.line[i])
         plan_or_reason = _plan_move(program, i, want[i], known[i], line_counts.get(line, 0), klartext, min_decimals,
@@ -432,14 +448,47 @@ def insert_points(
             result.skipped.append(SkippedMove(i, line, plan_or_reason))
         else:
             plans[line] = plan_or_reason
-    _assemble(program, plans, result, klartext)
+    _assemble(program, plans, result, klartext, settle_texts)
     if semi and not klartext:
         result.notes.append(f"inserted lines are marked with '{comment}' (the program uses ';' comments)")
     else:
         result.notes.append(f"inserted lines are marked with '{comment}'")
-    if verify and plans:
+    if verify and (plans or settle_texts):
         _verify(program, result, plans)
     return result
+
+
+def _settle_texts(program: Program, settles: Mapping[int, float], comment: str,
+                  result: InsertResult) -> dict[int, list[str]]:
+    """Source line -> the settle lines to put before it; records :attr:`InsertResult.settled` and the skipped."""
+    out: dict[int, list[str]] = {}
+    if not settles:
+        return out
+    mv = program.moves
+    per_line = np.bincount(mv.line.astype(np.int64), minlength=1)
+    for i, secs in sorted(settles.items()):
+        if not 0 <= i < len(mv):
+            raise ValueError(f"settle before move {i}: the program has {len(mv)} moves")
+        line = int(mv.line[i])
+        ms = math.ceil(round(float(secs) * 1000.0, 6))
+        if ms <= 0:
+            continue
+        if mv.flags[i] & FLAG_REPEATED:
+            result.skipped.append(SkippedMove(i, line, "settle: " + _UNSAFE_FLAGS[FLAG_REPEATED]))
+            continue
+        if per_line[line] > 1:
+            result.skipped.append(SkippedMove(i, line, "settle: the line holds more than one move"))
+            continue
+        t = f"{ms / 1000.0:.3f}"
+        if program.dialect == "heidenhain":
+            texts = [f"{{N}} CYCL DEF 9.0 DWELL TIME {comment}", f"{{N}} CYCL DEF 9.1 DWELL {t} {comment}"]
+        elif program.dialect == "fanuc":
+            texts = [f"G4 X{t} {comment}"]
+        else:
+            texts = [f"G4 P{t} {comment}"]
+        out[line] = texts
+        result.settled[i] = ms / 1000.0
+    return out
 
 
 def _plan_move(program: Program, i: int, fractions: list[float], known: NDArray[np.bool_], moves_on_line: int,
@@ -655,8 +704,10 @@ def _split_lines(text: str) -> list[str]:
     return out
 
 
-def _assemble(program: Program, plans: dict[int, _Plan], result: InsertResult, klartext: bool) -> None:
-    """Write the new text and the line map into ``result``."""
+def _assemble(program: Program, plans: dict[int, _Plan], result: InsertResult, klartext: bool,
+              settle_texts: Mapping[int, list[str]] | None = None) -> None:
+    """Write the new text and the line map into ``result`` (settle lines before a line's points)."""
+    settle_texts = settle_texts or {}
     src = _split_lines(program.text)
     out: list[str] = []
     origin: list[int] = []
@@ -674,6 +725,13 @@ def _assemble(program: Program, plans: dict[int, _Plan], result: InsertResult, k
             m = _KL_NUMBER.match(body)
             if m is not None:
                 own_number = int(m.group(2))
+        for t in settle_texts.get(ln, ()):
+            if "{N}" in t:
+                t = t.replace("{N}", str((own_number or 0) + shift), 1)
+                shift += 1
+            out.append(t + (eol or _neighbour_eol(src, ln)))
+            origin.append(ln)
+            inserted_flag.append(True)
         if plan is not None:
             ins_eol = eol or _neighbour_eol(src, ln)
             for k, t in enumerate(plan.texts):
@@ -737,6 +795,11 @@ def _verify(program: Program, result: InsertResult, plans: dict[int, _Plan]) -> 
         s, e = mv.start_mm[i], mv.end_mm[i]
         d = e - s
         ll = float(np.dot(d, d))
+        # a settle stands still before the move's first piece, a dwell as written (whole ms), and nowhere else
+        want_dwell = float(mv.dwell_s[i]) + result.settled.get(i, 0.0)
+        if abs(float(nv.dwell_s[r]) - want_dwell) > 1e-9 or (pieces and np.any(nv.dwell_s[r + 1:r + pieces + 1] != 0)):
+            raise CorrectionError(path, int(mv.line[i]), f"refined program: move {i} re-reads with a dwell of"
+                                  f" {float(nv.dwell_s[r]):g} s before it, expected {want_dwell:g} s")
         for k in range(pieces + 1):
             j = r + k
             line = int(mv.line[i])

@@ -524,3 +524,20 @@ def log_on_refined(log: AxisLog, original: Program, refined: Program, inserted: 
     line = np.where(new_mv >= 0, refined.moves.line[np.maximum(new_mv, 0)], 0).astype(np.int64)
     cmd = np.where(new_mv >= 0, refined.moves.command[np.maximum(new_mv, 0)], -1).astype(np.int64)
     return AxisLog(log.t_s, cmd, line, log.ref_mm, log.act_mm)
+
+
+def settle_windows(log: AxisLog, original: Program, settled: dict[int, float]) -> NDArray[np.bool_]:
+    """Samples of a log of ``original`` that a settle of its refined program changes: for each settled move (index
+    -> dwell, s; :attr:`ilcnc.program.insert.InsertResult.settled`), its first ``dwell`` seconds. There the axes were
+    still closing the rapid's lag, which the settle closes before the feed starts, so this log says nothing of how
+    the refined program runs there."""
+    out = np.zeros(log.n_samples, dtype=bool)
+    if not settled:
+        return out
+    mv = sample_moves(log, original)
+    t = np.asarray(log.t_s, dtype=np.float64)
+    for j, secs in settled.items():
+        on = np.flatnonzero(mv == j)
+        if on.size:
+            out[on[t[on] < t[on[0]] + secs]] = True
+    return out

@@ -386,7 +386,7 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
         require_learnable(original)  # before the state: a refusal leaves nothing behind
         refinement = refine_for_learning(original, profile) if refine else None  # before the state: a refusal makes none
         state = _new_state(state_dir, original, data, profile, profile_sha,
-                           refined=refinement is not None and refinement.inserted.n_inserted > 0)
+                           refined=refinement is not None and refinement.inserted.changed)
         if refinement is not None:
             _store_refinement(state, refinement)
             notes.extend(refinement.notes())
@@ -438,11 +438,13 @@ def _stored_feed_scale(state: LearnState, learning: Program) -> NDArray[np.float
     return np.where(ok & (b < a), b / np.where(ok, a, 1.0), 1.0)
 
 
-def _refine_from_log(req: LearnRequest, profile: MachineProfile, original: Program) -> tuple[Any, Any]:
+def _refine_from_log(req: LearnRequest, profile: MachineProfile, original: Program
+                     ) -> tuple[Any, Any, NDArray[np.int64]]:
     """The first measured step of a refined run: refine where the log of the original program erred (no extra
-    machine run), and that log read as a run of the refined program."""
+    machine run), that log read as a run of the refined program, and the refined commands whose samples lie in a
+    settle's window (:func:`ilcnc.shop.measure.settle_windows`: the first step does not learn from them)."""
     from ilcnc.axislog.detect import read_log
-    from ilcnc.shop.measure import check_log_memory, log_on_refined, measure_log
+    from ilcnc.shop.measure import check_log_memory, log_on_refined, measure_log, settle_windows
 
     assert req.log is not None
     period = req.log_period_s if req.log_period_s is not None else profile.machine.servo_period_s
@@ -453,14 +455,16 @@ def _refine_from_log(req: LearnRequest, profile: MachineProfile, original: Progr
     assert meas.seg is not None and meas.u is not None and meas.contour_mm is not None and meas.feed_mask is not None
     dist = np.where(meas.feed_mask, meas.contour_mm, np.nan)
     refinement = refine_from_errors(original, profile, dist_mm=dist, seg=meas.seg, u=meas.u, first_stats=meas.stats)
-    if refinement.inserted.n_inserted == 0:
-        return refinement, log
-    return refinement, log_on_refined(log, original, refinement.program, refinement.inserted)
+    if not refinement.inserted.changed:
+        return refinement, log, np.zeros(0, dtype=np.int64)
+    on_refined = log_on_refined(log, original, refinement.program, refinement.inserted)
+    k = on_refined.k[settle_windows(log, original, refinement.inserted.settled)]
+    return refinement, on_refined, np.unique(k[k >= 0]).astype(np.int64)
 
 
 def _store_refinement(state: LearnState, refinement: Any) -> None:
     """Keep the refined program in the state: it is the learning index of every iteration of the run."""
-    if refinement.inserted.n_inserted == 0:
+    if not refinement.inserted.changed:
         state.part["refined"] = {"file": None, **refinement.to_json()}
         return
     name = f"refined{state.part['suffix']}"
@@ -577,19 +581,20 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
     src_bytes = read_bytes(source)
     src_sha = sha256_bytes(src_bytes)
     refined_log = None
+    settled_k = np.zeros(0, dtype=np.int64)
     if state is None:
         original = read_program(req.program, default_units=profile.machine.units, data=data)
         _out_suffix_matches(original, req.out)
         refinement = None
         if req.refine or (profile.learning.refine.enabled == "on" and req.log is not None):
-            refinement, refined_log = _refine_from_log(req, profile, original)  # refused before any state is made
+            refinement, refined_log, settled_k = _refine_from_log(req, profile, original)  # refused before any state is made
         state = _new_state(req.state, original, data, profile, profile_sha,
-                           refined=refinement is not None and refinement.inserted.n_inserted > 0)
+                           refined=refinement is not None and refinement.inserted.changed)
         made.append(req.state)
         first_data = data
         if refinement is not None:
             _store_refinement(state, refinement)
-            if refinement.inserted.n_inserted:
+            if refinement.inserted.changed:
                 first_data = refinement.program.text.encode("latin-1")  # the refined program runs what ran
         name = f"iter-000{state.part['suffix']}"
         sha = state.write_file(name, first_data)
@@ -656,6 +661,11 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         assert req.points is not None
         meas = measure_points(read_points(req.points), original, profile, source=req.points,
                               reach_mm=req.points_reach_mm)
+    if settled_k.size:  # the log holds the rapid's lag there, which the settles remove: no update from it
+        meas.signal.e_mm[settled_k] = 0.0
+        meas.notes.append(f"settle: the first step learns nothing at {plural(int(settled_k.size), 'command')} right"
+                          " after the settles (the log of the original holds the rapid's lag there, which they"
+                          " remove; the next measured run shows what is left)")
     # the measurement of this iteration (written before the index that names it)
     entry.errors = state.write_errors(entry.iteration, meas.signal.e_mm, meas.signal.t_s, meas.signal.valid)
     entry.stats = meas.stats.to_json()
@@ -687,8 +697,11 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         notes.append("feed: learning.refine.feed lowers feeds on the virtual CNC only (learn without --log); this"
                      " measured step changes coordinates alone")
     if refined_log is not None and state.part.get("refined"):
-        notes.insert(0, f"refined from the log of the original program: {state.part['refined']['inserted_lines']}"
-                        " lines inserted (docs/learning.md, Refinement)")
+        rf = state.part["refined"]
+        settles = (f", {plural(rf['settles'], 'settle')} ({rf['settle_s']:.3f} s) before feeds after rapids"
+                   if rf.get("settles") else "")
+        notes.insert(0, f"refined from the log of the original program: {rf['inserted_lines']}"
+                        f" lines inserted{settles} (docs/learning.md, Refinement)")
     status, message = LearnStatus.STEPPED, ""
     out: Path | None = None
     clips: list[Clip] = []

@@ -38,6 +38,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'plan_corners': ('BLEND_LENGTH_FRACTION', 'RoundingTables', 'junction_speeds', 'junction_tolerances', 'rounding_tables'),
     'plan_kernels': ('BLOCK_SAMPLES', 'arc_table', 'group_kernel', 'group_range', 'group_state'),
     'plan_zones': ('Pieces', 'slow_zones', 'zone_pieces'),
+    'settle': ('MAX_SETTLE_S', 'settle_time_s'),
     'plan_tp': (
         'ACC_RATIO_NORMAL', 'ACC_RATIO_TANGENTIAL', 'BLEND_DIST_FRACTION', 'GAP_CYCLES', 'KINK_RATIO',
         'LOOKAHEAD_SEGMENTS', 'MIN_SEGMENT_CYCLES', 'TOLERANCE_RATIO', 'plan_linuxcnc'
