@@ -26,7 +26,8 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("vcnc", ("ilcnc.vcnc",)),
     ("learning", ("ilcnc.learning",)),
     ("shop", ("ilcnc.shop",)),
-    ("cli", ("ilcnc.cli", "ilcnc.cli_options", "ilcnc.cli_output", "ilcnc.cli_linuxcnc", "ilcnc.__main__", "ilcnc")),
+    ("cli", ("ilcnc.cli", "ilcnc.cli_options", "ilcnc.cli_output", "ilcnc.cli_linuxcnc", "ilcnc.cli_values",
+             "ilcnc.__main__", "ilcnc")),
 ]
 
 #: Modules above ~1,200 lines, each one concept (issue 19 asks to say which and why).

@@ -257,6 +257,19 @@ def test_aliases(tmp_path: Path) -> None:
     assert p.axes["y"].drive == p.axes["x"].drive
 
 
+def test_a_merge_key_and_a_key_given_again_are_not_duplicates(tmp_path: Path) -> None:
+    # the lines of the keys are read from the text as written, before the data merges '<<' into the mapping
+    # (the one parse of ilcnc.profile.load._parse_yaml)
+    text = MINIMAL.replace("  x:\n", "  x: &xa\n").replace(
+        "  y:\n    max_velocity_mm_min: 10000\n", "  y:\n    <<: *xa\n    max_velocity_mm_min: 12000\n")
+    p = load_profile(write(tmp_path, text))
+    assert p.axes["y"].max_velocity_mm_min == 12000 and p.axes["y"].max_jerk_m_s3 == 20
+    bad = text.replace("max_velocity_mm_min: 12000", "max_velocity_mm_min: -1")
+    line = bad.splitlines().index("    max_velocity_mm_min: -1") + 1
+    with pytest.raises(ProfileError, match=rf"mill.yaml:{line}: axes.y.max_velocity_mm_min: must be"):
+        load_profile(write(tmp_path, bad))
+
+
 # -- round trip ---------------------------------------------------------------
 
 

@@ -469,3 +469,171 @@ def test_selftest_command_reports_its_steps_and_fails_on_bad_figures(ok: bool, m
     assert r.exit_code == (0 if ok else 1)
     got = json.loads(r.stdout)
     assert got["ok"] is ok and got["compiled"] == 3 and got["steps"][0]["figure"] == "max 12.94 µm"
+
+
+# ---------------------------------------------------------------------------------------------
+# The command line itself: what it imports, the one command it builds, option values without pydantic
+# ---------------------------------------------------------------------------------------------
+
+#: What the command line must not import before a command needs it: typer's pydantic coercion and rich's
+#: Markdown (markdown_it) are for values ilcnc.cli_values does not answer and for help; the rest is work.
+_NOT_AT_START = ("pydantic", "markdown_it", "rich.markdown", "scipy", "matplotlib", "numpy", "numba", "yaml")
+
+
+def test_importing_the_command_line_imports_no_heavy_module() -> None:
+    res = _run_python(f"""
+        import sys
+        import ilcnc.cli
+        print([m for m in {_NOT_AT_START!r} if m in sys.modules])
+    """)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("argv", [
+    ["inspect", _STAR, "--json"],
+    ["check", _STAR, "--profile", _MILL, "--max-error", "0.05"],
+    ["simulate", _STAR, "--profile", _MILL, "--json", "--corners", "3"],
+    ["check", _STAR, str(ROOT / "samples" / "own" / "square.ngc"), "--profile", _MILL, "--max-error", "0.05",
+     "--json"],
+], ids=["inspect", "check", "simulate", "check-many"])
+def test_a_command_builds_only_itself_and_parses_its_options_without_pydantic(argv: list[str]) -> None:
+    # as the shell runs it: ilcnc.cli.main with sys.argv
+    res = _run_python(f"""
+        import sys
+        import typer.main
+        built = []
+        orig = typer.main.get_command_from_info
+        def counted(*args, **kw):
+            built.append((args[0] if args else kw["command_info"]).callback.__name__)
+            return orig(*args, **kw)
+        typer.main.get_command_from_info = counted
+        sys.argv = ["ilcnc", *{argv!r}]
+        from ilcnc.cli import main
+        try:
+            main()
+        except SystemExit as exc:
+            assert not exc.code, exc.code
+        print(built, [m for m in ("pydantic", "markdown_it", "rich.markdown", "scipy.signal", "matplotlib")
+                      if m in sys.modules])
+    """)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines()[-1] == f"{[argv[0]]} []"
+
+
+def _commands() -> list[tuple[str, ...]]:
+    import typer.main
+
+    from ilcnc.cli import app
+
+    out: list[tuple[str, ...]] = []
+
+    def walk(cmd: object, path: tuple[str, ...]) -> None:
+        subs = getattr(cmd, "commands", None)
+        if subs is None:
+            out.append(path)
+        for name, sub in (subs or {}).items():
+            walk(sub, (*path, name))
+
+    walk(typer.main.get_command(app), ())
+    return out
+
+
+@pytest.mark.parametrize("args", [["--help"], ["--bogus"], ["--debug", "a", "b", "c", "d"]],
+                         ids=["help", "bad-option", "too-many-arguments"])
+def test_the_one_command_app_says_what_the_whole_app_says(args: list[str]) -> None:
+    from ilcnc.cli import app
+
+    commands = _commands()
+    assert len(commands) >= 14 and ("linuxcnc", "run") in commands
+    runner = CliRunner()
+    for path in commands:
+        argv = [*path, *args]
+        trimmed = app.only(argv)
+        assert trimmed is not app and [c.callback.__name__ for c in trimmed.registered_commands] in ([path[0]], [])
+        whole, one = runner.invoke(app, argv, prog_name="ilcnc"), runner.invoke(trimmed, argv, prog_name="ilcnc")
+        assert (one.exit_code, one.stdout, one.stderr) == (whole.exit_code, whole.stdout, whole.stderr), argv
+    # no command, a root option first, an unknown name, shell completion: the whole app
+    for argv in ([], ["--debug", "check"], ["chek"], ["--help"]):
+        assert app.only(argv) is app
+
+
+def test_shell_completion_sees_every_command(monkeypatch: pytest.MonkeyPatch) -> None:
+    from ilcnc.cli import app
+
+    monkeypatch.setenv("_ILCNC_COMPLETE", "bash_complete")
+    assert app.only(["check"]) is app
+
+
+#: Option texts: plain ones ilcnc.cli_values answers, and ones typer must (whitespace, underscores, inf, nan,
+#: other digits, hex, empty, out of range), for every parameter of every command.
+_TEXTS = ["0", "1", "-1", "+2", "0.05", ".5", "5.", "1e-3", "1E+3", "-0", "007", "8", "9", "100", "101", "256", "1000",
+          "1001", "10000", "1e6", "1e7", "1e400", "0.000001", "1e-7", "123456789012345678", "1234567890123456789",
+          " 1", "1 ", "1_000", "inf", "-inf", "nan", "Infinity", "0x10", "", "abc", "1e", "٣", "1.5.2", "--", "-",
+          "samples/own/star.ngc", "samples", "missing.ngc", ".", "configs/example-mill.yaml", "x\ty"]
+
+
+def test_plain_option_values_are_what_typers_coercion_gives(monkeypatch: pytest.MonkeyPatch) -> None:
+    """ilcnc.cli_values against typer's own coercion (pydantic), value by value, on every parameter."""
+    import typer.main
+    from typer._click import Context
+    from typer._coercion import build_runtime_param
+
+    from ilcnc.cli import app
+    from ilcnc.cli_values import PlainValue
+
+    monkeypatch.chdir(ROOT)
+
+    def outcome(coerce: object, value: object, param: object, ctx: object) -> tuple[str, str]:
+        try:
+            got = coerce(value, param=param, ctx=ctx)  # type: ignore[operator]
+        except Exception as exc:  # the same error (type and message) is the point
+            return type(exc).__name__, str(getattr(exc, "message", exc))
+        return type(got).__name__, repr(got) + repr([type(v).__name__ for v in got] if isinstance(got, list) else "")
+
+    root = typer.main.get_command(app)
+    params = []
+    stack = [root]
+    while stack:
+        cmd = stack.pop()
+        stack += list(getattr(cmd, "commands", {}).values())
+        ctx = Context(cmd)
+        params += [(cmd, ctx, p) for p in [*cmd.params, cmd.get_help_option(ctx)] if hasattr(p, "type_descriptor")]
+    kinds: dict[str, int] = {}
+    plain = 0
+    for _cmd, ctx, p in params:
+        mine = PlainValue(p)
+        theirs = build_runtime_param(p.type_descriptor)
+        multi = p.multiple or p.nargs == -1
+        values: list[object] = [None, p.default, True, False, 3, 2.5, *_TEXTS]
+        if multi:
+            values += [tuple(_TEXTS[i:i + 2]) for i in range(0, len(_TEXTS), 2)] + [(), ["1", "2"]]
+        for v in values:
+            want = outcome(theirs.coerce, v, p, ctx)
+            mine._typer = None
+            got = outcome(mine.coerce, v, p, ctx)
+            assert got == want, (p.name, v)
+            plain += mine._typer is None and v is not None
+        kinds[p.type_descriptor.annotation.__name__ if hasattr(p.type_descriptor.annotation, "__name__")
+              else str(p.type_descriptor.annotation)] = 1
+    # every kind of parameter the commands have was seen, and most values were answered without typer
+    assert {"Path", "str", "float", "int", "bool"} <= set(kinds) and any("list" in k for k in kinds)
+    assert plain > len(params) * 15
+
+
+@pytest.mark.parametrize(("argv", "value"), [
+    (["check", _STAR, "--profile", _MILL, "--max-error", "0.05"], None),
+    (["simulate", _STAR, "--profile", _MILL, "--corners", "7"], None),
+])
+def test_a_usual_command_line_never_builds_typers_coercion(argv: list[str], value: None,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    import typer._coercion
+
+    from ilcnc.cli import app
+
+    built: list[object] = []
+    orig = typer._coercion.build_runtime_param
+    monkeypatch.setattr(typer._coercion, "build_runtime_param", lambda d: (built.append(d), orig(d))[1])
+    r = CliRunner().invoke(app, argv)
+    assert r.exit_code in (0, 1), r.output
+    assert built == []
