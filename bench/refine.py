@@ -11,6 +11,7 @@ cycle time change, without and with ``--refine`` (the same run, so the ratios co
     python bench/refine.py --feed [PROG ...]   # refine with learning.refine.feed: on (a profile copy)
     python bench/refine.py --arc-radial 0.01 [PROG ...]  # learning.arc_start_radial_mm: 0.01 (plain and refine)
     python bench/refine.py --error path [PROG ...]  # learning.error: path (refine's default is lifted)
+    python bench/refine.py --budget 3 [PROG ...]  # refine with learning.cycle_budget_pct: 3 (a profile copy)
 """
 
 from __future__ import annotations
@@ -43,14 +44,15 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--gamma", type=float, help="learning.gains.gamma")
     ap.add_argument("--arc-radial", dest="radial", type=float, help="learning.arc_start_radial_mm")
     ap.add_argument("--error", help="learning.error")
+    ap.add_argument("--budget", type=float, help="learning.cycle_budget_pct, %% (refine only)")
     args = ap.parse_args(argv)
-    arcs, feed, gamma, radial, error = args.arcs, args.feed, args.gamma, args.radial, args.error
+    arcs, feed, gamma, radial, error, budget = args.arcs, args.feed, args.gamma, args.radial, args.error, args.budget
     programs = args.programs or DEFAULT
     resolution_um = 1.0  # configs/example-mill.yaml machine.resolution_mm
     print(f"{'program':28s} {'mode':8s} {'max um':>16s} {'max':>6s} {'RMS um':>14s} {'RMS':>6s} {'cycle':>7s} {'lines+':>6s}")
     with tempfile.TemporaryDirectory() as tmp:
         profile = PROFILE
-        variant = arcs or feed or gamma is not None
+        variant = arcs or feed or gamma is not None or budget is not None
         if variant or radial is not None or error is not None:
             import yaml
 
@@ -65,6 +67,8 @@ def main(argv: list[str]) -> None:
                 data["learning"]["arc_start_radial_mm"] = radial
             if error is not None:
                 data["learning"]["error"] = error
+            if budget is not None:
+                data["learning"]["cycle_budget_pct"] = budget
             profile = Path(tmp) / "example-mill-variant.yaml"
             profile.write_text(yaml.safe_dump(data))
         for prog in programs:
@@ -79,7 +83,8 @@ def main(argv: list[str]) -> None:
                 inserted = (run.get("refined") or {}).get("inserted_lines", 0)
                 floor = " (at the floor)" if a["max"] * 1e3 <= 2 * resolution_um else ""
                 label = ("arcs " if arcs else "") + ("feed " if feed else "") + (
-                    f"g={gamma:g}" if gamma is not None else "") or mode
+                    f"g={gamma:g}" if gamma is not None else "") + (
+                    f"b={budget:g}%" if budget is not None else "") or mode
                 if radial is not None:
                     label = f"{label} r{radial:g}"
                 if error is not None:

@@ -11,7 +11,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'arc_starts': ('arc_start_constraint', 'keep_arcs_valid'),
     'cycle_hold': (
         'CLIP_CYCLE', 'HALVINGS', 'NEIGHBOUR_MOVES', 'CycleBudget', 'CycleHold', 'hold_cycle_time', 'motion_time_s',
-        'slowed_moves'
+        'slowed_moves', 'slowed_spots'
     ),
     'feed': ('FeedLaw', 'feed_cost_s', 'move_errors_mm', 'move_times_s'),
     'gain_schedule': ('DEFAULT_DK', 'ScheduleResult', 'schedule_gains', 'seed001_standin_program'),

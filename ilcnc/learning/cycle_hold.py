@@ -6,10 +6,14 @@ its rounding of the *commanded* path within that tolerance -- a real blending pl
 example mill the learned corners of square.ngc cost +3.9 % cycle time, Gates_combined_R12 +11 %.
 
 ``learning.cycle_budget_pct`` bounds that cost. When a proposed correction's program plans longer than the
-original program's cycle time plus the budget, :func:`hold_cycle_time` finds the moves the planner slowed
-(against the original program's plan) and halves the new part of the correction (``U_new - U_prev``) of every
-command within ``NEIGHBOUR_MOVES`` moves of them, re-plans, and repeats; after ``HALVINGS`` halvings those
-commands keep their previous correction. Every coordinate held is reported as a clip with the cause
+original program's cycle time plus the budget, :func:`hold_cycle_time` finds the spots the planner slowed
+(:func:`slowed_spots`: runs of moves within ``NEIGHBOUR_MOVES`` moves of a move planned longer than in the plan
+of the program the proposal starts from) and ranks them by their extra time per mm of new correction
+(``|U_new - U_prev|`` summed over the spot's commands: the error the law addresses there). Costliest first, it
+halves the new part of the correction of a spot's commands until the halvings' assumed saving (half a spot's
+extra time; all of it at its last hold) covers the excess, re-plans, and repeats with the spots still slowed;
+after ``HALVINGS`` halvings a command keeps its previous correction. A small budget so goes to the corrections
+that buy the most error per second. Every coordinate held is reported as a clip with the cause
 ``"cycle time"`` (:data:`CLIP_CYCLE`): a limiter on the law's output, counted like the correction bound.
 
 Only the plan is re-run (not the drives nor the contour error): the planner alone sets the cycle time.
@@ -35,7 +39,7 @@ from ilcnc.program.model import Program
 from ilcnc.wording import plural
 
 __all__ = ["CLIP_CYCLE", "HALVINGS", "NEIGHBOUR_MOVES", "CycleBudget", "CycleHold", "hold_cycle_time", "motion_time_s",
-           "slowed_moves"]
+           "slowed_moves", "slowed_spots"]
 
 #: Why a correction was changed after the law computed it: it slowed the planner beyond the cycle-time budget.
 CLIP_CYCLE = "cycle time"
@@ -89,11 +93,50 @@ def _near(mask: NDArray[np.bool_], width: int) -> NDArray[np.bool_]:
     return c[np.minimum(i + width + 1, n)] - c[np.maximum(i - width, 0)] > 0
 
 
+def slowed_spots(times_s: NDArray[np.float64], times_ref_s: NDArray[np.float64], period_s: float,
+                 command_of_move: NDArray[np.integer], live: NDArray[np.bool_]
+                 ) -> list[tuple[NDArray[np.intp], float]]:
+    """The spots the planner slowed: each a run of moves within :data:`NEIGHBOUR_MOVES` moves of a slowed move.
+
+    Parameters
+    ----------
+    times_s, times_ref_s : ndarray (M,)
+        Each move's planned time with the proposal and in the reference plan, s.
+    period_s : float
+        Servo period, s.
+    command_of_move : ndarray (M,) int
+        Command index of each move (-1: not a correctable straight feed).
+    live : ndarray (K,) bool
+        Commands whose correction may still be held.
+
+    Returns
+    -------
+    list of (ndarray of int, float)
+        Per spot, in program order: its live commands (ascending, not empty) and its extra time against the
+        reference (the sum of ``times_s - times_ref_s`` over its moves, at least 0), s.
+    """
+    near = _near(slowed_moves(times_s, times_ref_s, period_s), NEIGHBOUR_MOVES)
+    if not near.any():
+        return []
+    edges = np.diff(np.concatenate(([0], near.astype(np.int8), [0])))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    extra = np.asarray(times_s) - np.asarray(times_ref_s)
+    cmd = np.asarray(command_of_move)
+    spots = []
+    for a, b in zip(starts, stops, strict=True):
+        ks = np.unique(cmd[a:b][cmd[a:b] >= 0])
+        ks = ks[live[ks]]
+        if ks.size:
+            spots.append((ks, max(float(extra[a:b].sum()), 0.0)))
+    return spots
+
+
 def hold_cycle_time(u_prev_mm: NDArray[np.float64], u_new_mm: NDArray[np.float64],
                     plan: Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], float]],
                     times0_s: NDArray[np.float64], limit_s: float, command_of_move: NDArray[np.integer],
                     period_s: float, *, resolution_mm: float = 0.0) -> CycleHold:
-    """Hold back the corrections that slow the planner until the program plans within ``limit_s``.
+    """Hold back the corrections that slow the planner until the program plans within ``limit_s``, the costly
+    spots first (see the module docstring).
 
     Parameters
     ----------
@@ -103,7 +146,7 @@ def hold_cycle_time(u_prev_mm: NDArray[np.float64], u_new_mm: NDArray[np.float64
         ``plan(u) -> (times_s (M,), cycle_time_s)``: each move's planned time and the cycle time of the program
         with corrections ``u``, s.
     times0_s : ndarray (M,)
-        Each move's planned time in the original program, s.
+        Each move's planned time in the original program, s (the reference when ``u_prev_mm`` is 0).
     limit_s : float
         The longest cycle time allowed (the original's plus the budget), s.
     command_of_move : ndarray (M,) int
@@ -118,23 +161,43 @@ def hold_cycle_time(u_prev_mm: NDArray[np.float64], u_new_mm: NDArray[np.float64
     CycleHold
     """
     u_prev = np.asarray(u_prev_mm, dtype=np.float64)
-    u = np.asarray(u_new_mm, dtype=np.float64).copy()
+    u_full = np.asarray(u_new_mm, dtype=np.float64)
+    u = u_full.copy()
     k = u.shape[0]
     held = np.zeros(k, dtype=bool)
     times, cycle = plan(u)
     rounds = 0
+    if cycle <= limit_s:
+        return CycleHold(u, held, rounds, float(cycle), True)
+    du = u_full - u_prev
+    # the error a command's new correction addresses: the law's step (|E(k)| times the command's gain for the
+    # P law; the same ranking as |E(k)| on jsdc, measured), available to virtual and measured learning alike
+    w = np.sqrt(np.einsum("ij,ij->i", du, du))
+    # the reference: the plan of the program the proposal starts from (the hold goes back no further)
+    times_ref = np.asarray(times0_s) if not np.any(u_prev) else plan(u_prev)[0]
     # a command's share of its new correction: 1, then halved at every round it is held, 0 after HALVINGS
     share = np.ones(k)
-    cmd = np.asarray(command_of_move)
+    live = np.any(du != 0.0, axis=1)
     while cycle > limit_s:
-        slow = _near(slowed_moves(times, times0_s, period_s), NEIGHBOUR_MOVES)
-        ks = np.unique(cmd[slow & (cmd >= 0)])
-        ks = ks[share[ks] > 0.0]
-        if ks.size == 0:
+        spots = slowed_spots(times, times_ref, period_s, command_of_move, live & (share > 0.0))
+        if not spots:
             break
-        share[ks] = np.where(share[ks] <= 0.5 ** HALVINGS, 0.0, 0.5 * share[ks])
-        held[ks] = True
-        u = u_prev + share[:, None] * (np.asarray(u_new_mm) - u_prev)
+        # seconds per mm of error addressed: the costliest first; ties in program order (deterministic)
+        cost = np.array([extra for _ks, extra in spots])
+        err = np.array([float(w[ks].sum()) for ks, _extra in spots])
+        ratio = cost / np.maximum(err, np.finfo(np.float64).tiny)
+        order = np.lexsort((np.arange(len(spots)), -ratio))
+        need, saved = cycle - limit_s, 0.0
+        for i in order:
+            ks, extra = spots[i]
+            # a halving is assumed to save half the spot's extra time, the last hold the rest
+            last = share[ks].max() <= 0.5 ** HALVINGS
+            share[ks] = np.where(share[ks] <= 0.5 ** HALVINGS, 0.0, 0.5 * share[ks])
+            held[ks] = True
+            saved += extra if last else 0.5 * extra
+            if saved >= need:
+                break
+        u = u_prev + share[:, None] * du
         if resolution_mm > 0:
             u = np.round(u / resolution_mm) * resolution_mm
         times, cycle = plan(u)
@@ -234,7 +297,10 @@ class CycleBudget:
         def plan(u: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
             return planned_move_times_s(self.rewrite(u, feed_scale), self.profile)
 
-        return hold_cycle_time(u_prev_mm, u_new_mm, plan, self.times0_s, self.limit_s(feed_law),
+        times0 = self.times0_s
+        if feed_scale is not None and np.any(np.asarray(feed_scale) != 1.0) and not np.any(u_prev_mm):
+            times0 = plan(np.asarray(u_prev_mm, dtype=np.float64))[0]  # the reference at the proposal's feeds
+        return hold_cycle_time(u_prev_mm, u_new_mm, plan, times0, self.limit_s(feed_law),
                                self.program.moves.command, self.profile.machine.servo_period_s,
                                resolution_mm=self.profile.machine.resolution_mm)
 
