@@ -335,15 +335,26 @@ def _point(s, prog, skind, p0, p1, ctr, e1, e2, rad, straight, target, arc_move,
 
 
 @njit(cache=True, nogil=True)
+def _room(pos, mv, k):  # pragma: no cover - compiled
+    """``pos`` (R, 3) and ``mv`` (R,) with room for row ``k``: doubled (rows before ``k`` copied) when full."""
+    if k < pos.shape[0]:
+        return pos, mv
+    pos2 = np.empty((2 * pos.shape[0], 3))
+    pos2[:k] = pos[:k]
+    mv2 = np.empty(2 * pos.shape[0], np.int64)
+    mv2[:k] = mv[:k]
+    return pos2, mv2
+
+
+@njit(cache=True, nogil=True)
 def _run(skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent, vf, owner, period, first,
          arc_ax, arc_th0, arc_sgn, arc_sw, arc_r0, arc_r1, arc_dz, hold):  # pragma: no cover - compiled
     """Positions and segment owners at every servo period (sample 0: at rest at ``first``). ``hold[s]``: samples
     the position stands still before segment ``s`` starts (a dwell; the previous segment ends at a stop), on
     the move of the sample before."""
     n = target.shape[0]
-    cap = 4096
-    pos = np.empty((cap, 3))
-    mv = np.empty(cap, np.int64)
+    pos = np.empty((4096, 3))
+    mv = np.empty(4096, np.int64)
     pos[0] = first
     mv[0] = -1
     k = 1
@@ -354,14 +365,7 @@ def _run(skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent
     wait = hold[0] if n > 0 else 0
     while s < n:
         if wait > 0:
-            if k >= cap:
-                cap *= 2
-                pos2 = np.empty((cap, 3))
-                pos2[:k] = pos[:k]
-                pos = pos2
-                mv2 = np.empty(cap, np.int64)
-                mv2[:k] = mv[:k]
-                mv = mv2
+            pos, mv = _room(pos, mv, k)
             pos[k] = pos[k - 1]
             mv[k] = mv[k - 1]
             k += 1
@@ -399,14 +403,7 @@ def _run(skind, p0, p1, ctr, e1, e2, rad, straight, target, maxvel, acc, tangent
                     v = 0.0
                     if s < n:
                         wait = hold[s]
-        if k >= cap:
-            cap *= 2
-            pos2 = np.empty((cap, 3))
-            pos2[:k] = pos[:k]
-            pos = pos2
-            mv2 = np.empty(cap, np.int64)
-            mv2[:k] = mv[:k]
-            mv = mv2
+        pos, mv = _room(pos, mv, k)
         if s < n:
             _point(s, prog, skind, p0, p1, ctr, e1, e2, rad, straight, target, owner, arc_ax, arc_th0, arc_sgn, arc_sw,
                    arc_r0, arc_r1, arc_dz, pt)
