@@ -48,7 +48,7 @@ from ilcnc.errors import UnsupportedError
 from ilcnc.program.comments import split_gcode_comments
 from ilcnc.program.model import FLAG_REPEATED, Program
 
-__all__ = ["Carried", "Event", "carried_events", "gcode_blocks", "klartext_blocks"]
+__all__ = ["Carried", "Event", "carried_events", "dwell_blocks", "gcode_blocks", "klartext_blocks"]
 
 #: M functions both dialects run alike (spindle, coolant, stops, program end).
 _COMMON_M = {0, 1, 2, 3, 4, 5, 7, 8, 9, 30}
@@ -306,6 +306,14 @@ def _comment_text(text: str) -> str:
     return "".join(c if " " <= c <= "~" or ord(c) > 160 else " " for c in text).strip()
 
 
+def dwell_blocks(dialect: str, secs: str) -> list[str]:
+    """The blocks of a dwell of ``secs`` seconds, the number as given: ``G4 P`` (Fanuc ``G4 X``, seconds there),
+    Klartext cycle 9 in two blocks (without block numbers)."""
+    if dialect == "heidenhain":
+        return ["CYCL DEF 9.0 DWELL TIME", f"CYCL DEF 9.1 DWELL {secs}"]
+    return [f"G4 X{secs}" if dialect == "fanuc" else f"G4 P{secs}"]
+
+
 def gcode_blocks(events: list[Event], dialect: str) -> list[str]:
     """The G-code lines of ``events`` (a program end is the writer's own last line)."""
     out: list[str] = []
@@ -322,8 +330,7 @@ def gcode_blocks(events: list[Event], dialect: str) -> list[str]:
             if int(float(e.value)) not in (2, 30):
                 out.append(f"M{int(float(e.value))}")
         elif e.kind == "dwell":
-            secs = _num(float(e.value))
-            out.append(f"G4 X{secs}" if dialect == "fanuc" else f"G4 P{secs}")
+            out.extend(dwell_blocks(dialect, _num(float(e.value))))
     return out
 
 
@@ -341,6 +348,5 @@ def klartext_blocks(events: list[Event]) -> list[str]:
             if int(float(e.value)) not in (2, 30):
                 out.append(f"M{int(float(e.value))}")
         elif e.kind == "dwell":
-            out.append("CYCL DEF 9.0 DWELL TIME")
-            out.append(f"CYCL DEF 9.1 DWELL {_num(float(e.value))}")
+            out.extend(dwell_blocks("heidenhain", _num(float(e.value))))
     return out

@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ilcnc.errors import CorrectionError
+from ilcnc.program.carry import dwell_blocks
 from ilcnc.program.comments import split_gcode_comments
 from ilcnc.program.model import (
     FLAG_CUTTER_COMP,
@@ -479,14 +480,8 @@ def _settle_texts(program: Program, settles: Mapping[int, float], comment: str,
         if per_line[line] > 1:
             result.skipped.append(SkippedMove(i, line, "settle: the line holds more than one move"))
             continue
-        t = f"{ms / 1000.0:.3f}"
-        if program.dialect == "heidenhain":
-            texts = [f"{{N}} CYCL DEF 9.0 DWELL TIME {comment}", f"{{N}} CYCL DEF 9.1 DWELL {t} {comment}"]
-        elif program.dialect == "fanuc":
-            texts = [f"G4 X{t} {comment}"]
-        else:
-            texts = [f"G4 P{t} {comment}"]
-        out[line] = texts
+        number = "{N} " if program.dialect == "heidenhain" else ""  # a Klartext block: numbered in _assemble
+        out[line] = [f"{number}{b} {comment}" for b in dwell_blocks(program.dialect, f"{ms / 1000.0:.3f}")]
         result.settled[i] = ms / 1000.0
     return out
 
