@@ -11,8 +11,9 @@ program, start ``halsampler -t LOG``, run the program in AUTO with motion held
 (``motion.feed-inhibit``) until task has queued the first blocks (200, or all
 of a shorter program), release the
 hold and enable the sampler in the same servo cycle (HAL signal ``ilcnc-go``),
-wait until the interpreter is idle, the motion queue empty and motion
-done, keep sampling ILCNC_SETTLE more seconds (wall clock; the axes still lag
+hold each restart after a dwell the same way (the dwell gate, see
+``Dwells``), wait until the interpreter is idle, the motion queue empty and
+motion done, keep sampling ILCNC_SETTLE more seconds (wall clock; the axes still lag
 after ``motion.program-line`` went back to 0), disable the sampler, drain the
 FIFO, stop halsampler, switch the machine off, write the result file, exit.
 
@@ -41,7 +42,11 @@ Result file (JSON object)
 the machine off); ``program_wall_s``: wall time from AUTO_RUN to done;
 ``phase``: where it stopped; ``queue_low``: null, or the queue depth and line
 at which the motion queue ran low while task still had blocks to send (the
-planner then saw less look-ahead than in a real-time run).
+planner then saw less look-ahead than in a real-time run); ``dwells``:
+``{"held": n, "missed": n, "held_wall_s": s}``, the restarts after dwells the
+gate held until task had queued the next blocks, the dwells that were over
+before the driver saw them (their restart raced task, as without the gate),
+and the wall time the gate was armed.
 
 Exit code: 0 = program ran without errors, 1 = LinuxCNC reported an error
 (interpreter refused the program, following error, ...), 2 = the driver
@@ -77,6 +82,10 @@ def hal_int(name):
     return int(float(halcmd("getp", name)))
 
 
+# task's execution states in which it sends blocks as fast as it can (a low queue then is starvation)
+SENDING = (linuxcnc.EXEC_DONE, linuxcnc.EXEC_WAITING_FOR_MOTION_QUEUE)
+
+
 def queue_low(trace, low=100, slack=20):
     """First poll at which the motion queue ran low while task still had blocks to send, or None.
 
@@ -87,17 +96,75 @@ def queue_low(trace, low=100, slack=20):
     more lines ran afterwards than were queued (lines increasing); with
     lines going backwards (loops) only while the interpreter was still reading.
     """
-    lines = [m for _, m, _ in trace if m > 0]
+    lines = [t[1] for t in trace if t[1] > 0]
     if not lines:
         return None
     monotone = all(b >= a for a, b in zip(lines, lines[1:]))
     final = max(lines)
-    for q, m, st in trace:
-        if m <= 0 or q >= low:
-            continue
+    for q, m, st, ex, armed in trace:
+        if m <= 0 or q >= low or armed or ex not in SENDING:
+            continue  # task waits on purpose (a dwell, a queue-busting block, the end): motion drains the queue
         if (monotone and final - m > q + slack) or (not monotone and st == linuxcnc.INTERP_READING and q < 10):
             return {"queue": q, "motion_line": m}
     return None
+
+
+class Dwells:
+    """The dwell gate: a restart after a dwell starts with the queue filled, as the program's start does.
+
+    Task runs a dwell (G4) in wall-clock time after motion has stopped, then
+    sends the next blocks one per task cycle; motion starts on the first one.
+    How many blocks the planner sees when it starts then depends on the time
+    scale (task's 1 ms is k servo cycles). While task waits out a dwell the
+    driver arms the gate (``ilcnc-dwell``): motion is held, and the servo
+    cycle the first block arrives the whole simulated world stops (drives and
+    sampler). Once the queue is filled the driver releases it and the world
+    goes on from the same state: the log shows the dwell, then a start with
+    full look-ahead, at any time scale.
+    """
+
+    def __init__(self):
+        self.armed = False
+        self.seen = 0  # dwells the gate held
+        self.missed = 0  # dwells that ended before the gate was armed
+        self.held_wall_s = 0.0
+        self.t_arm = self.t_q = 0.0
+        self.last_q = -1
+
+    def arm(self):
+        halcmd("sets", "ilcnc-dwell", "1")
+        self.armed = True
+        self.t_arm = self.t_q = time.monotonic()
+        self.last_q = -1
+
+    def disarm(self):
+        if self.armed:
+            halcmd("sets", "ilcnc-dwell", "0")
+            self.armed = False
+            self.held_wall_s += time.monotonic() - self.t_arm
+
+    def step(self, s, hold_queue):
+        if not self.armed:
+            if s.exec_state == linuxcnc.EXEC_WAITING_FOR_DELAY and s.queue == 0:
+                self.arm()
+            return
+        if s.queue == 0:
+            if s.interp_state == linuxcnc.INTERP_IDLE and s.exec_state == linuxcnc.EXEC_DONE:
+                self.disarm()  # the program ended with the dwell
+            return
+        if halcmd("getp", "ilcnc.frozen.out") != "TRUE":
+            self.missed += 1  # the first block moved before the gate held it
+            self.disarm()
+            return
+        now = time.monotonic()
+        if s.queue != self.last_q:
+            self.last_q, self.t_q = s.queue, now
+        if s.queue >= hold_queue or now - self.t_q > 0.05:
+            self.seen += 1
+            self.disarm()
+
+    def report(self):
+        return {"held": self.seen, "missed": self.missed, "held_wall_s": round(self.held_wall_s, 3)}
 
 
 class Stop(Exception):
@@ -212,10 +279,12 @@ def main():
         halcmd("sets", "ilcnc-go", "1")
         t_release = time.monotonic()
         started = False
-        trace = []  # (queue depth, motion_line, interp_state) per poll, for the starvation check
+        trace = []  # (queue depth, motion_line, interp_state, exec_state, dwell gate armed) per poll, for the starvation check
+        dw = Dwells()
         while True:
             s.poll()
-            trace.append((s.queue, s.motion_line, s.interp_state))
+            dw.step(s, hold_queue)
+            trace.append((s.queue, s.motion_line, s.interp_state, s.exec_state, dw.armed))
             err = poll_errors()
             if err and not result["line"]:
                 result["line"] = s.read_line
@@ -237,6 +306,8 @@ def main():
             if time.monotonic() - t_run > timeout:
                 raise Stop("program still running after %s" % timeout_label)
             time.sleep(0.002)
+        dw.disarm()
+        result["dwells"] = dw.report()
         result["program_wall_s"] = round(time.monotonic() - t_run, 4)
         result["queue_low"] = queue_low(trace)
         if os.environ.get("ILCNC_TRACE"):

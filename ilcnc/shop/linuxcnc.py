@@ -931,6 +931,10 @@ def run_program(
         want = span + 1 + round(settle_s / period_s)
         if log.n_samples < want:
             result.messages.append(f"settle tail shorter than asked: {log.n_samples} of {want} samples logged")
+        missed = (res.get("dwells") or {}).get("missed", 0)
+        if missed:
+            result.messages.append(f"{missed} dwell(s) ended before the driver could hold the restart after them: "
+                                   "motion started while task was still queueing the next blocks")
         if low:
             result.messages.append(f"the motion queue ran low ({low.get('queue')} blocks at line {low.get('motion_line')}) "
                                    "while blocks were still to come (task could not keep ahead, or a queue-busting block)")
