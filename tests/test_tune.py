@@ -15,7 +15,7 @@ import pytest
 
 from ilcnc.learning.gain_schedule import ScheduleResult, schedule_gains, seed001_standin_program
 from ilcnc.learning.learner import learn_virtual
-from ilcnc.learning.lifted_check import LiftedCheck, check_lifted, lifted_model
+from ilcnc.learning.lifted_check import RHO_TOL, LiftedCheck, check_lifted, lifted_model
 from ilcnc.learning.time_design import design_time_domain, epsilon_of, frequency_grid
 from ilcnc.learning.tune import TuneReport, tune_profile
 from ilcnc.profile.load import load_profile, profile_from_dict
@@ -529,3 +529,20 @@ def test_schedule_without_the_gain_penalty(schedule_report: TuneReport) -> None:
     assert r.lam == 0.0
     assert r.reduction == pytest.approx(schedule_report.result.reduction, abs=0.01)
     assert r.kp[0] == pytest.approx(1.6)  # at rest before Z moves: the gain is held
+
+
+def test_growing_modes_of_a_window_sit_at_its_cut_ends() -> None:
+    """jsdc on linuxcnc-sim, Γ 0.5 with the profile's 20 Hz Q filter: ρ > 1 on the window, but every growing mode
+    has more than half its energy on the 10 commands next to a window end that cuts through the program, and
+    it moves with the window (issue 18: tune called 20 Hz divergent while every measured run converged)."""
+    prof = load_profile(CONFIGS / "linuxcnc-sim.yaml")
+    prog = read_program(JSDC)
+    first = check_lifted(prog, prof, gammas=(0.5,), q_filters_hz=(20.0,))
+    k0, k1 = first.model.window
+    moved = check_lifted(prog, prof, gammas=(0.5,), q_filters_hz=(20.0,), commands=(k0 + 52, k1 + 52))
+    for chk in (first, moved):
+        c = chk.chosen
+        # measured: ρ 1.0078 (window 1848..2047) and 1.0092 (moved by 52); away from the cut ends 1 within 1e-9
+        assert c.spectral_radius > 1.0 + RHO_TOL
+        assert c.spectral_radius_inner <= 1.0 + RHO_TOL
+        assert c.status == "divergent" and "sits at an end of the window" in chk.reason

@@ -59,6 +59,9 @@ _SETTLE_TOL = 1e-7
 _SETTLE_MAX_S = 5.0
 #: A vertex whose two moves turn by more than this (degrees) is a corner: its error may point anywhere.
 _CORNER_DEG = 20.0
+#: Commands next to an end of the window that cuts through a run (the program goes on there) whose modes
+#: belong to the cut, not to the program: a mode with more than half its energy on them is a window-edge mode.
+EDGE_COMMANDS = 10
 
 
 @dataclass(frozen=True, eq=False)
@@ -389,6 +392,14 @@ class LiftedCandidate:
     spectral_radius_full : float
         ``ρ(I − G Q Γ S)`` on all coordinates: above 1 while ``spectral_radius`` is not,
         a tangential mode of the corrections creeps (it moves no contour error).
+    spectral_radius_inner : float
+        ``spectral_radius`` over the modes that do not have more than half their energy
+        on the :data:`EDGE_COMMANDS` commands next to an end of the window that cuts
+        through a run (the same as ``spectral_radius`` when the window ends where runs
+        end). Cutting the lifted map of a non-normal iteration to a window makes modes
+        whose eigenvectors pile up at the cut and move with it when the window moves
+        (``bench/lifted_modes.py``); the program has no edge there. Reported, not judged:
+        ``status`` stays with ``spectral_radius`` (the conservative reading).
     predicted_ratio : float
         ``‖(I − G Q Γ S) E_0‖ / ‖E_0‖``: this program's error after one iteration.
     predicted_ratio_n : float
@@ -411,10 +422,12 @@ class LiftedCandidate:
     predicted_ratio_n: float
     iterations: int
     status: LiftedStatus
+    spectral_radius_inner: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         return {"gamma": self.gamma, "q_filter_hz": self.q_filter_hz, "norm": self.norm, "norm_full": self.norm_full,
                 "spectral_radius": self.spectral_radius, "spectral_radius_full": self.spectral_radius_full,
+                "spectral_radius_inner": self.spectral_radius_inner,
                 "predicted_ratio": self.predicted_ratio,
                 "predicted_ratio_n": self.predicted_ratio_n, "iterations": self.iterations, "status": self.status}
 
@@ -554,13 +567,14 @@ def check_lifted(program: Any, profile: MachineProfile, *, gamma: float | None =
     b = mdl.normal_basis
     e0 = mdl.e0_mm
     e0n = float(np.linalg.norm(e0))
+    edge = _cut_edge_rows(mdl, runs)
     cands: list[LiftedCandidate] = []
     with _one_blas_thread():
         for q in qs:
             qm = _q_matrix(mdl, runs, corr, q, lead, period)
             gq = mdl.g @ qm
             for gam in gs:
-                cands.append(_candidate(eye - gam * gq, b, e0, e0n, gam, q, n_it))
+                cands.append(_candidate(eye - gam * gq, b, e0, e0n, gam, q, n_it, edge))
     mono = [c for c in cands if c.status == LiftedStatus.MONOTONE]
     asym = [c for c in cands if c.status == LiftedStatus.ASYMPTOTIC]
     if mono:
@@ -577,6 +591,11 @@ def check_lifted(program: Any, profile: MachineProfile, *, gamma: float | None =
         contraction = chosen.predicted_ratio_n ** (1.0 / max(n_it, 1))
         reason = (f"divergent: spectral radius {chosen.spectral_radius:.6f} > 1 for every candidate (a mode of the"
                   f" error grows every iteration); best norm {chosen.norm:.4g}")
+    if chosen.spectral_radius > 1.0 + RHO_TOL >= chosen.spectral_radius_inner:
+        k0, k1 = mdl.window
+        reason += (f"; every growing mode sits at an end of the window (commands {k0}..{k1 - 1}) that cuts through"
+                   f" the program (ρ away from those ends {chosen.spectral_radius_inner:.6f}): cutting a non-normal"
+                   " iteration to a window makes such modes, so this reading is conservative")
     if chosen.spectral_radius_full > 1.0 + RHO_TOL:
         reason = (reason + "; " if reason else "") + (
             f"a tangential mode of the corrections grows (ρ on all coordinates {chosen.spectral_radius_full:.6f}):"
@@ -587,13 +606,38 @@ def check_lifted(program: Any, profile: MachineProfile, *, gamma: float | None =
                        lead_commands=lead)
 
 
+def _cut_edge_rows(model: LiftedModel, runs: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """(n,) rows of the commands within :data:`EDGE_COMMANDS` of an end of the window that cuts through a run."""
+    k0, k1 = model.window
+    cmd = model.command
+    near = np.zeros(cmd.shape[0], dtype=bool)
+    if 0 < k0 < runs.shape[0] and runs[k0 - 1] == runs[k0]:
+        near |= cmd < k0 + EDGE_COMMANDS
+    if 0 < k1 < runs.shape[0] and runs[k1] == runs[k1 - 1]:
+        near |= cmd >= k1 - EDGE_COMMANDS
+    return near
+
+
+def _radii(mn: NDArray[np.float64], b: NDArray[np.float64], edge: NDArray[np.bool_]) -> tuple[float, float]:
+    """ρ of ``mn = BᵀMB`` over all modes, and over the modes away from the window's cut edges."""
+    if not edge.any():
+        rho = float(np.max(np.abs(np.linalg.eigvals(mn))))
+        return rho, rho
+    lam, vec = np.linalg.eig(mn)
+    energy = np.abs(b @ vec) ** 2
+    at_edge = energy[edge].sum(axis=0) > 0.5 * energy.sum(axis=0)
+    mag = np.abs(lam)
+    return float(mag.max()), float(mag[~at_edge].max()) if (~at_edge).any() else 0.0
+
+
 def _candidate(m: NDArray[np.float64], b: NDArray[np.float64], e0: NDArray[np.float64], e0n: float, gamma: float,
-               q: float | None, n_it: int) -> LiftedCandidate:
+               q: float | None, n_it: int, edge: NDArray[np.bool_] | None = None) -> LiftedCandidate:
     """Norms, spectral radii and the predicted error ratios of one iteration matrix ``m``."""
     mb = m @ b
     nb = float(np.linalg.norm(mb, 2)) if b.shape[1] else 0.0
     nf = float(np.linalg.norm(m, 2))
-    rho_n = float(np.max(np.abs(np.linalg.eigvals(b.T @ mb)))) if b.shape[1] else 0.0
+    edge = np.zeros(m.shape[0], dtype=bool) if edge is None else edge
+    rho_n, rho_i = _radii(b.T @ mb, b, edge) if b.shape[1] else (0.0, 0.0)
     rho_f = float(np.max(np.abs(np.linalg.eigvals(m))))
     if e0n > 0:
         r1 = float(np.linalg.norm(m @ e0) / e0n)
@@ -609,7 +653,7 @@ def _candidate(m: NDArray[np.float64], b: NDArray[np.float64], e0: NDArray[np.fl
         status = LiftedStatus.ASYMPTOTIC if rho_n <= 1.0 + RHO_TOL else LiftedStatus.DIVERGENT
     return LiftedCandidate(gamma=gamma, q_filter_hz=q, norm=nb, norm_full=nf, spectral_radius=rho_n,
                            spectral_radius_full=rho_f, predicted_ratio=r1, predicted_ratio_n=rn, iterations=n_it,
-                           status=status)
+                           status=status, spectral_radius_inner=rho_i)
 
 
 class _one_blas_thread:

@@ -109,7 +109,7 @@ class TuneReport:
         if self.method == "time":
             return ("axis", "law", "K_Pl", "K_Il 1/s", "K_Dl s", "lead η", "ε", "peak Hz", "converges", "note")
         if self.method == "lifted":
-            return ("Γ", "Q-filter Hz", "‖(I−GQΓ)B‖₂", "ρ", "‖E₁‖/‖E₀‖", "‖Eₙ‖/‖E₀‖", "status", "")
+            return ("Γ", "Q-filter Hz", "‖(I−GQΓ)B‖₂", "ρ", "ρ inner", "‖E₁‖/‖E₀‖", "‖Eₙ‖/‖E₀‖", "status", "")
         return ("axis", "K_p fixed", "K_p min", "K_p mean", "K_p max", "MSE before µm²", "MSE after µm²", "cut")
 
     def rows(self) -> list[tuple[str, ...]]:
@@ -126,7 +126,8 @@ class TuneReport:
             out = []
             for c in r.candidates:
                 out.append((_fmt(c.gamma), "none" if c.q_filter_hz is None else _fmt(c.q_filter_hz), _fmt(c.norm, ".5f"),
-                            _fmt(c.spectral_radius, ".6f"), _fmt(c.predicted_ratio, ".3f"), _fmt(c.predicted_ratio_n, ".3f"),
+                            _fmt(c.spectral_radius, ".6f"), _fmt(c.spectral_radius_inner, ".6f"),
+                            _fmt(c.predicted_ratio, ".3f"), _fmt(c.predicted_ratio_n, ".3f"),
                             c.status, "← chosen" if c is r.chosen else ""))
             return out
         s: ScheduleResult = r
