@@ -141,6 +141,11 @@ class RunResult:
         non-zero program line), real-time s.
     messages : list of str
         Non-error texts LinuxCNC reported (operator messages, ``(MSG,...)``).
+    dwells_held : int
+        Restarts after a dwell that the configuration's dwell gate held until task had queued the next
+        blocks (``configs/linuxcnc-sim/README.md``, "Dwell gate"; 0 for a configuration without one).
+    dwells_missed : int
+        Dwells that were over before the driver could arm the gate (their restart raced task).
     """
 
     program: Path
@@ -152,6 +157,8 @@ class RunResult:
     program_wall_s: float | None
     program_s: float
     messages: list[str] = field(default_factory=list)
+    dwells_held: int = 0
+    dwells_missed: int = 0
 
 
 # ---------------------------------------------------------------------------
@@ -931,7 +938,9 @@ def run_program(
         want = span + 1 + round(settle_s / period_s)
         if log.n_samples < want:
             result.messages.append(f"settle tail shorter than asked: {log.n_samples} of {want} samples logged")
-        missed = (res.get("dwells") or {}).get("missed", 0)
+        dwells = res.get("dwells") or {}
+        result.dwells_held = int(dwells.get("held", 0))
+        result.dwells_missed = missed = int(dwells.get("missed", 0))
         if missed:
             result.messages.append(f"{missed} dwell(s) ended before the driver could hold the restart after them: "
                                    "motion started while task was still queueing the next blocks")

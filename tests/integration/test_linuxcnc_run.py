@@ -320,3 +320,53 @@ def test_a_stray_percent_is_refused_before_linuxcnc_starts(tmp_path: Path) -> No
     assert ei.value.line == n and "add '%' as the first line" in ei.value.problem
     assert lcnc.stray_percent_line("%\nG1 X1\n%\n") is None  # a delimited program
     assert lcnc.stray_percent_line("G1 X1 (50% speed)\nM2\n") is None  # a % in a comment
+
+
+# ---------------------------------------------------------------------------
+# Restarts after dwells (the dwell gate, configs/linuxcnc-sim/README.md)
+# ---------------------------------------------------------------------------
+
+#: Two dwells, each followed by a plunge and 60 wavy G1 blocks of 1 mm at F3000 (20 ms a block).
+_DWELL_PROGRAM = "\n".join(
+    ["G21 G90 G17 G94", "G64 P0.01", "G0 X0 Y0 Z5", "G0 X10 Y0 Z1", "G4 P0.2", "G1 Z0 F3000"]
+    + [f"G1 X{10 + i:.4f} Y{0.5 * np.sin(i * 0.2):.4f}" for i in range(1, 61)]
+    + ["G0 Z5", "G0 X0 Y20", "G0 Z1", "G4 P0.15", "G1 Z0 F3000"]
+    + [f"G1 X{i:.4f} Y{20 + 0.5 * np.cos(i * 0.15):.4f}" for i in range(1, 61)]
+    + ["G0 Z5", "M2", ""])
+#: (line of the plunge after each dwell, the dwell's P in s, line of the retract that ends its stretch)
+_RESTARTS = ((6, 0.2, 67), (71, 0.15, 132))
+
+
+@_mark
+def test_restart_after_a_dwell_is_the_same_at_any_time_scale(tmp_path: Path) -> None:
+    prog = tmp_path / "dwell.ngc"
+    prog.write_text(_DWELL_PROGRAM)
+    lines = _DWELL_PROGRAM.splitlines()
+    assert [lines[a - 1].split()[0] for a, _, b in _RESTARTS] == ["G1", "G1"]
+    assert [lines[b - 1] for _, _, b in _RESTARTS] == ["G0 Z5", "G0 Z5"]
+    runs = {k: lcnc.run_program(prog, CONFIG, tmp_path / f"k{k}.log", time_scale=k) for k in (1, 8)}
+    for r in runs.values():
+        # the gate held both restarts; task's refill after a dwell no longer reads as a queue that ran low,
+        # so the time-scaled run is not repeated at a smaller scale (it was: 8 -> 4 -> 2 -> 1)
+        assert r.dwells_held == 2 and r.dwells_missed == 0, r.messages
+        assert not any("ran low" in m for m in r.messages), r.messages
+    assert runs[8].time_scale == 8
+    a, b = runs[1].log, runs[8].log
+    for start, p_s, end in _RESTARTS:
+        i, j = int(np.flatnonzero(a.line == start)[0]), int(np.flatnonzero(b.line == start)[0])
+        for log, s in ((a, i), (b, j)):
+            still = s - 1
+            while still > 0 and np.array_equal(log.ref_mm[still - 1], log.ref_mm[s - 1]):
+                still -= 1
+            # task dwells at least P once motion has stopped (longer by its own wall-clock latency)
+            assert s - still >= round(p_s / runs[1].period_s)
+        n = int(np.flatnonzero(a.line == end)[0]) - i
+        assert n > 60 * 15  # the whole stretch: 60 blocks of 20 ms
+        # from the restart on, the commanded path is k = 1's sample for sample (the planner saw the same queue)
+        assert np.abs(a.ref_mm[i:i + n] - b.ref_mm[j:j + n]).max() <= 1e-6
+        # the axes start from the lag the dwell left, which differs with the dwell's length. The drives are linear
+        # and overdamped (Kv 30/s, tau 5 ms: damping 1/(2 sqrt(Kv tau)) = 1.29), so the two actual paths differ by
+        # the free response to the difference of their states at the restart (at rest after the dwell): never more
+        # than that difference, at most the sum of the two residual lags
+        lag = np.abs(a.act_mm[i] - a.ref_mm[i]).max() + np.abs(b.act_mm[j] - b.ref_mm[j]).max()
+        assert np.abs(a.act_mm[i:i + n] - b.act_mm[j:j + n]).max() <= lag + 1e-6
