@@ -35,14 +35,18 @@ How a run works (:func:`run_program`)
 
 Time scaling (``time_scale = k``): the servo period is divided by k, velocity
 limits multiplied by k, accelerations by k^2, jerks by k^3, the loop gain
-``[ILCNC] KV`` by k, and the program's F words by k (dwell times divided by k)
-in a temporary copy. Every servo cycle is then the same as in the unscaled
-run, so the log is the same sample sequence, produced k times faster; it is
-returned in real-time units. Two things could still make it differ, and both
-are handled: (1) the planner's first segments depend on what task has queued
-when motion starts -- the simulation holds motion (``motion.feed-inhibit``)
-until the queue stops growing and starts sampling in the cycle it releases
-it; (2) task feeds the queue in wall-clock time (a few blocks per ms), so a
+``[ILCNC] KV`` and every rate (``*FREQ``, with ``[TRAJ] ARC_BLEND_RAMP_FREQ``
+written out at LinuxCNC's default when the INI leaves it out) by k, and the
+program's F words by k (dwell times divided by k) in a temporary copy. Every
+servo cycle is then the same as in the unscaled run, so the log is the same
+sample sequence, produced k times faster; it is returned in real-time units.
+Three things could still make it differ, and all are handled: (1) the
+planner's first segments depend on what task has queued when motion starts
+-- the simulation holds motion (``motion.feed-inhibit``) until the queue
+stops growing and starts sampling in the cycle it releases it, and its dwell
+gate does the same after each ``G4`` (task waits out a dwell in wall-clock
+time, then refills the queue) with the simulated world frozen while it
+waits; (2) task feeds the queue in wall-clock time (a few blocks per ms), so a
 scaled run of many short blocks can drain the queue and the planner then sees
 less look-ahead than in real time -- the driver detects a queue that ran low
 while blocks were still to come, and the run is repeated at a smaller k

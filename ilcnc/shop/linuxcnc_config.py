@@ -48,11 +48,21 @@ def _fmt(v: float) -> str:
     return s
 
 
+#: Time-based INI values LinuxCNC 2.9 assumes when the INI leaves them out, by section: a time-scaled run must
+#: write them scaled. [TRAJ] ARC_BLEND_RAMP_FREQ (Hz): the planner runs a segment shorter than v / f at a ramped
+#: velocity; left at 100 Hz while v grows k-fold, far longer segments counted as short at k = 8 and a program of
+#: 0.3 mm blocks planned a different velocity profile from its 10th block on (bench/linuxcnc_dwell.py
+#: --block-mm 0.3; compass ran 1.1 % longer at k = 8 than at k = 1).
+TIME_DEFAULTS: dict[str, dict[str, str]] = {"TRAJ": {"ARC_BLEND_RAMP_FREQ": "100"}}
+
+
 def _scale_factor(section: str, key: str, k: int) -> float | None:
     """How an INI value scales with time scale k (None: unchanged). SERVO_PERIOD is handled apart."""
     key_u = key.upper()
     if section.upper() == "ILCNC" and key_u == "KV":
         return float(k)
+    if key_u.endswith("FREQ"):
+        return float(k)  # a rate, 1/s (ARC_BLEND_RAMP_FREQ)
     if "JERK" in key_u:
         return float(k) ** 3
     if "ACCEL" in key_u:
@@ -76,6 +86,12 @@ def scaled_ini_text(
     """
     k = int(time_scale)
     pending = {sec.upper(): {str(key).upper(): str(v) for key, v in vals.items()} for sec, vals in (overrides or {}).items()}
+    if k > 1:  # LinuxCNC's defaults of time-based values the INI leaves out, written out so that they scale
+        have = {sec.upper(): {key.upper() for key in vals} for sec, vals in read_ini_text(text).items()}
+        for sec, vals in TIME_DEFAULTS.items():
+            for key, v in vals.items():
+                if key not in have.get(sec, set()) and key not in pending.get(sec, {}):
+                    pending.setdefault(sec, {})[key] = v
     seen: dict[str, set[str]] = {}
     out: list[str] = []
     section = ""

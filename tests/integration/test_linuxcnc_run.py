@@ -244,11 +244,19 @@ def test_scaled_ini_text() -> None:
     out = lcnc_config.read_ini_text(lcnc_config.scaled_ini_text(ini, 4, overrides))
     assert out["EMCMOT"]["SERVO_PERIOD"] == "250000"
     assert out["ILCNC"] == {"KV": "120", "LP_GAIN": "0.181"}
-    assert out["TRAJ"] == {"MAX_LINEAR_VELOCITY": "400", "MAX_LINEAR_ACCELERATION": "16000"}
+    # LinuxCNC's default ramp frequency (100 Hz), which the INI leaves out, written out and scaled: a rate x k
+    assert out["TRAJ"] == {"MAX_LINEAR_VELOCITY": "400", "MAX_LINEAR_ACCELERATION": "16000",
+                           "ARC_BLEND_RAMP_FREQ": "400"}
     assert out["JOINT_0"] == {"MAX_VELOCITY": "400", "FERROR": "1", "HOME_SEARCH_VEL": "0", "MIN_FERROR": "0.5"}
     assert out["NEW"] == {"A": "1"}
     with pytest.raises(InputError, match="divisible"):
         lcnc_config.scaled_ini_text(ini, 3)
+    # the INI's own value is scaled, an override is taken as a real-time value and scaled too; k = 1: as written
+    own = ini.replace("[TRAJ]\n", "[TRAJ]\nARC_BLEND_RAMP_FREQ = 50\n")
+    assert lcnc_config.read_ini_text(lcnc_config.scaled_ini_text(own, 8))["TRAJ"]["ARC_BLEND_RAMP_FREQ"] == "400"
+    ov = lcnc_config.scaled_ini_text(ini, 2, {"TRAJ": {"ARC_BLEND_RAMP_FREQ": 30}})
+    assert lcnc_config.read_ini_text(ov)["TRAJ"]["ARC_BLEND_RAMP_FREQ"] == "60"
+    assert lcnc_config.scaled_ini_text(ini, 1) == ini
 
 
 _HALSAMPLER = """\
