@@ -11,7 +11,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'batch': ('BatchJob', 'PartResult', 'ReturnedPart', 'ShippedPart', 'folder_programs', 'jobs_from_path',
               'learn_shipped', 'retried', 'run_batch', 'ship_part', 'summary_csv', 'write_returned'),
     'corners': (
-        'CornerReport', 'DEFAULT_CORNERS', 'ROUNDING_SHARE', 'corner_report', 'learned_corner_report', 'setting_text',
+        'CornerReport', 'DEFAULT_CORNERS', 'corner_report', 'learned_corner_report', 'setting_text',
         'write_tightened'
     ),
     'corrections': ('read_corrections', 'write_corrections'),

@@ -35,6 +35,7 @@ from ilcnc.vcnc.rounding import (
     vertex_tolerances,
 )
 from ilcnc.vcnc.tighten import (
+    ROUNDING_SHARE,
     TightenedProgram,
     Tightening,
     tightened_text,
@@ -43,13 +44,11 @@ from ilcnc.vcnc.tighten import (
     tolerance_word_mm,
 )
 
-__all__ = ["DEFAULT_CORNERS", "ROUNDING_SHARE", "CornerReport", "corner_report", "learned_corner_report", "setting_text",
+__all__ = ["DEFAULT_CORNERS", "CornerReport", "corner_report", "learned_corner_report", "setting_text",
            "write_tightened"]
 
 #: How many corners the report lists by default.
 DEFAULT_CORNERS = 5
-#: A corner whose planner rounding is at least this share of its maximum gets a tighter tolerance suggested.
-ROUNDING_SHARE = 0.5
 
 
 def _klartext(program: Program) -> bool:

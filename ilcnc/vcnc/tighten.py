@@ -23,9 +23,12 @@ from ilcnc.program.path_control import PathSetting, path_settings
 from ilcnc.units import MM_PER_INCH, length_word
 from ilcnc.vcnc.rounding import CornerError, tolerance_cost
 
-__all__ = ["TIGHTER_MARKER", "TightenedProgram", "Tightening", "TighterRange", "tightened_text", "tightening_for",
-           "tolerance_block", "tolerance_word_mm"]
+__all__ = ["ROUNDING_SHARE", "TIGHTER_MARKER", "TightenedProgram", "Tightening", "TighterRange", "tightened_text",
+           "tightening_for", "tolerance_block", "tolerance_word_mm"]
 
+#: A corner whose planner rounding is at least this share of its maximum gets a tighter tolerance (suggested by
+#: the corner report, chosen by refinement).
+ROUNDING_SHARE = 0.5
 #: The comment that marks every line :func:`tightened_text` inserts (``simulate --tighter-out``).
 TIGHTER_MARKER = "ilcnc tighter"
 
