@@ -1161,11 +1161,13 @@ def refine_from_errors(original: Program, profile: MachineProfile, *, dist_mm: N
     t0 = float(plan_program(original, profile).duration_s) if cycle_time_s is None else float(cycle_time_s)
     plan = plan_refinement(original, profile, dist_mm=dist_mm, seg=seg, u=u, classes=classes, cycle_time_s=t0)
     tol = None
-    if profile.learning.refine.tolerance == "on" and tighten:
-        from ilcnc.learning.refine_tolerance import plan_tolerance
+    if profile.learning.refine.tolerance == "on":
+        from ilcnc.learning.refine_tolerance import ToleranceRefinement, plan_tolerance
 
         tol = plan_tolerance(original, profile, dist_mm=dist_mm, seg=seg, u=u, classes=classes, cycle_time_s=t0,
-                             lines_used=plan.n_points + len(plan.settles))
+                             lines_used=plan.n_points + len(plan.settles)) if tighten else ToleranceRefinement(
+            remark="learning.refine.tolerance is virtual only: a log's first step would learn the original's rounding"
+                   " at the tightened corners")
     res = insert_points(original, plan.points, min_decimals=profile.min_decimals(original.units),
                         settles=plan.settles)
     text = res.text

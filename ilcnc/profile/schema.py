@@ -756,10 +756,10 @@ SPECS: tuple[Spec, ...] = (
        default="off"),
     _f("learning.refine.tolerance_share", "The tighter tolerance as a share of the target, half the first run's cutting"
        " max (the rest of the target is left for the lag that learning leaves), never below twice"
-       " machine.resolution_mm.", "", 0, 1, lo_open=True, default=0.6),
+       " machine.resolution_mm.", "", 0, 1, lo_open=True, default=0.5),
     _f("learning.refine.tolerance_budget_pct", "Most cycle time the tighter tolerance may add, % of the original"
        " program's planned cycle time (planned before learning); the corners beyond it are reported.", "%", 0, 10,
-       default=1.0),
+       default=2.0),
     _f("learning.refine.min_spacing_periods", "Least distance of an inserted point from another end point, in servo"
        " periods of motion at the move's feed (a controller runs at most one block per period).", "", 1, 1000,
        default=3.0),
