@@ -21,7 +21,7 @@ from ilcnc.shop.state import LearnState
 from ilcnc.vcnc.plan import planned_duration_s
 from ilcnc.vcnc.rounding import planner_rounding
 
-from .conftest import REPO, with_refine
+from .conftest import OWN, REPO, with_refine
 
 MILL = REPO / "configs" / "example-mill.yaml"
 COMPASS = REPO / "samples" / "compass.ngc"
@@ -154,6 +154,37 @@ def test_the_path_control_lines_survive_every_iteration_and_export(tmp_path: Pat
     # judged against the original drawing like any refined output
     code, msg = _run("simulate", out, "--profile", prof, "--against", COMPASS, "--json")
     assert code == 0, msg
+
+
+def test_klartext_gets_cycle_32_in_numbered_blocks() -> None:
+    """square.h: cycle 32 with T before the range, cycle 32 without T (the machine's tolerance) after it, each in
+    two blocks marked like the points; every block after them renumbered, consecutive; re-read, the tightened
+    moves run within T and the others as before (the writer checks it; asserted here again on the text)."""
+    prof = with_refine(load_profile(MILL), tolerance="on")
+    prog = read_program(OWN / "square.h")
+    ref = refine_for_learning(prog, prof)
+    tol = ref.tolerance
+    assert tol.written is not None and len(tol.written.ranges) == 1 and len(tol.corners) >= 1
+    lines = ref.program.text.splitlines()
+    t = f"{tol.tolerance_mm:g}"
+    cyc = [ln for ln in lines if "CYCL DEF 32" in ln]
+    assert [ln.split(" ", 1)[1].split(" ;")[0] for ln in cyc] == [
+        "CYCL DEF 32.0 TOLERANCE", f"CYCL DEF 32.1 T{t}", "CYCL DEF 32.0 TOLERANCE", "CYCL DEF 32.1"]
+    assert all(ln.endswith(("corners rounded within 2.3 um", "the program's own path control again")) and
+               f"; {MARKER}: " in ln for ln in cyc)
+    assert [int(ln.split(" ", 1)[0]) for ln in lines] == list(range(len(lines)))  # block numbers 0, 1, 2, ...
+    mv = ref.program.moves
+    inside = (mv.line > lines.index(cyc[1]) + 1) & (mv.line < lines.index(cyc[2]) + 1)
+    assert inside.sum() >= 2 and np.all(mv.blend_tol_mm[inside] == tol.tolerance_mm)
+    assert np.all(np.isnan(mv.blend_tol_mm[~inside]))  # the program sets none: the machine's, before and after
+
+
+def test_klartext_corners_next_to_rnd_or_chf_are_left_alone() -> None:
+    """contour.h: the control holds the move before RND / CHF until that block; cycle 32 between them would
+    apply to other moves than their lines say, so those corners are left alone and counted."""
+    prof = with_refine(load_profile(MILL), tolerance="on")
+    ref = refine_for_learning(read_program(OWN / "contour.h"), prof)
+    assert ref.tolerance.passed.get("next to a rounding, chamfer, approach or departure (RND / CHF / APPR / DEP)", 0) >= 1
 
 
 def test_grbl_is_left_alone_with_its_reason() -> None:

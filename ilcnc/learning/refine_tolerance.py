@@ -44,10 +44,17 @@ from numpy.typing import NDArray
 from ilcnc.contour.air import MOVE_CUT
 from ilcnc.errors import InputError
 from ilcnc.profile.sections import MachineProfile
-from ilcnc.program.model import Program
-from ilcnc.program.path_control import path_settings
+from ilcnc.program.model import FLAG_DERIVED, Program
 from ilcnc.vcnc.rounding import CornerError, VertexMax, corner_errors, planner_rounding, vertex_tolerances
-from ilcnc.vcnc.tighten import ROUNDING_SHARE, TightenedProgram, Tightening, tightened_text, tightening_for, tolerance_word_mm
+from ilcnc.vcnc.tighten import (
+    ROUNDING_SHARE,
+    TightenedProgram,
+    Tightening,
+    own_path_control_lines,
+    tightened_text,
+    tightening_for,
+    tolerance_word_mm,
+)
 from ilcnc.wording import plural
 
 __all__ = ["FLOOR_STEPS", "MARGIN", "TARGET_SHARE", "ToleranceRefinement", "plan_tolerance", "write_tolerance"]
@@ -125,11 +132,14 @@ class ToleranceRefinement:
             lines = ", ".join(r.lines for r in t.ranges[:8]) + (", ..." if len(t.ranges) > 8 else "")
             now = max(r.rounding_mm for r in t.ranges) * 1e3
             after = max(r.rounding_after_mm for r in t.ranges) * 1e3
+            where = "lines" if len(t.ranges) > 1 or "-" in lines else "line"
             out.append(f"refined: {t.word} at {plural(len(self.corners), 'corner')} whose first-run error is mostly"
-                       f" the planner's rounding (lines {lines}; the program's own path control after each): rounding"
+                       f" the planner's rounding ({where} {lines}; the program's own path control after each): rounding"
                        f" up to {now:.2f} -> {after:.2f} µm planned, cycle time {t.extra_pct:+.2f} % planned")
         for reason, n in sorted(self.passed.items()):
             out.append(f"refine: {plural(n, 'corner')} above half the first run's max left alone ({reason})")
+        for why in self.written.skipped if self.written is not None else []:
+            out.append(f"refine: no tighter tolerance on {why}")
         return out
 
 
@@ -193,17 +203,21 @@ def plan_tolerance(program: Program, profile: MachineProfile, *, dist_mm: NDArra
     out._pass("mostly the drives' lag, which learning takes", len(blend) - len(mostly))
     if not mostly:
         return out
-    if program.dialect != "linuxcnc":
-        out._pass(f"a {program.dialect} program: the tighter tolerance is written as LinuxCNC's G64 P only"
-                  + (" (Klartext cycle 32 in a refined program is not written yet)" if program.dialect == "heidenhain"
-                     else f" ({program.dialect} sets its corner tolerance in the control's settings)"), len(mostly))
+    if program.dialect not in ("linuxcnc", "heidenhain"):
+        out._pass(f"a {program.dialect} program: {program.dialect} sets its corner tolerance in the control's"
+                  " settings, not per line (the tighter tolerance is LinuxCNC's G64 P or Klartext cycle 32)", len(mostly))
         return out
     chosen = [c for c in mostly if c.rounding_mm > out.tolerance_mm]
     out._pass(f"rounding already within {out.tolerance_mm * 1e3:g} µm", len(mostly) - len(chosen))
-    own = {s.line for s in path_settings(program)}
+    own = own_path_control_lines(program)
     line = program.moves.line
     free = [c for c in chosen if int(line[c.vertex - 1]) not in own]
     out._pass("the program sets its own path control on that line", len(chosen) - len(free))
+    if program.dialect == "heidenhain":  # the control holds a move until the RND / CHF / APPR / DEP after it
+        held = {int(x) for x in line[(program.moves.flags & FLAG_DERIVED) != 0].tolist()}
+        near = [c for c in free if not held & {int(line[c.vertex - 1]) + d for d in (-1, 0, 1)}]
+        out._pass("next to a rounding, chamfer, approach or departure (RND / CHF / APPR / DEP)", len(free) - len(near))
+        free = near
     if not free:
         return out
     budget_s = cfg.tolerance_budget_pct / 100.0 * cycle_time_s

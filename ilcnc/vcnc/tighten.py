@@ -11,6 +11,7 @@ allows, which no corrected end point takes away.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,14 +19,15 @@ import numpy as np
 
 from ilcnc.outcomes import PathMode
 from ilcnc.profile.sections import MachineProfile
-from ilcnc.program.model import MOVE_RAPID, Program
+from ilcnc.program.model import FLAG_DERIVED, MOVE_RAPID, Program
 from ilcnc.program.path_control import PathSetting, path_settings
 from ilcnc.units import MM_PER_INCH, length_word
 from ilcnc.vcnc.rounding import CornerError, tolerance_cost
 
-__all__ = ["ROUNDING_SHARE", "TIGHTER_MARKER", "TightenedProgram", "Tightening", "TighterRange", "tightened_text",
-           "tightening_for", "tolerance_block", "tolerance_word_mm"]
+__all__ = ["ROUNDING_SHARE", "TIGHTER_MARKER", "TightenedProgram", "Tightening", "TighterRange", "own_path_control_lines",
+           "tightened_text", "tightening_for", "tolerance_block", "tolerance_word_mm"]
 
+_CYCLE_32 = re.compile(r"(?i)CYCL\s+DEF\s+32\b")
 #: A corner whose planner rounding is at least this share of its maximum gets a tighter tolerance (suggested by
 #: the corner report, chosen by refinement).
 ROUNDING_SHARE = 0.5
@@ -35,6 +37,13 @@ TIGHTER_MARKER = "ilcnc tighter"
 
 def _klartext(program: Program) -> bool:
     return program.dialect == "heidenhain"
+
+
+def own_path_control_lines(program: Program) -> set[int]:
+    """The lines on which ``program`` sets its own path control (G-code ``G61``/``G64``, Klartext cycle 32)."""
+    if _klartext(program):
+        return {no for no, ln in enumerate(program.text.split("\n"), 1) if _CYCLE_32.search(ln)}
+    return {s.line for s in path_settings(program)}
 
 
 def tolerance_block(program: Program, tol_mm: float) -> str:
@@ -186,28 +195,32 @@ def tightened_text(program: Program, profile: MachineProfile, tightening: Tighte
                    marker: str = TIGHTER_MARKER) -> TightenedProgram:
     """``program``'s text with ``tightening``'s ``G64 P`` before each range and the program's own mode after it.
 
-    Only a LinuxCNC G-code program: ``G64 P`` is LinuxCNC's word (grbl and Fanuc set their corner tolerance
-    elsewhere), and a Klartext block inserted would renumber the blocks after it. A range in which the program
-    sets its own path control (``G61``/``G64`` on one of its lines) is left out: the block after it would undo
-    the program's. Each inserted line carries the comment ``(MARKER: ...)`` (``marker``: ``ilcnc tighter``, or
-    ``ilcnc refine`` in a refined program). The result is read again and
-    checked: the same moves, bit for bit, and the tolerance written where it was meant to be.
+    A LinuxCNC G-code program (``G64 P`` is LinuxCNC's word; grbl and Fanuc set their corner tolerance
+    elsewhere) or Klartext: cycle 32 (``CYCL DEF 32.0`` / ``32.1 T``) before the range and again after it with
+    the program's own ``T`` (or none: the machine's), each in numbered blocks, the blocks after them renumbered
+    (:func:`ilcnc.program.insert.insert_points`). A range in which the program sets its own path control
+    (``G61``/``G64``, cycle 32 on one of its lines) is left out: the block after it would undo the program's.
+    Each inserted line carries the comment ``(MARKER: ...)`` (Klartext ``; MARKER: ...``; ``marker``:
+    ``ilcnc tighter``, or ``ilcnc refine`` in a refined program). The result is read again and checked: the
+    same moves, bit for bit, and the tolerance written where it was meant to be.
 
     Raises
     ------
     InputError
-        Not a LinuxCNC G-code program.
+        Neither a LinuxCNC G-code nor a Klartext program.
     CorrectionError
         The text read again is not the program with those tolerances (a defect of ilcnc).
     """
     from ilcnc.errors import CorrectionError, InputError
-    from ilcnc.program.insert import lines_inserted, reread, same_moves
+    from ilcnc.program.insert import insert_points, lines_inserted, reread, same_moves
     from ilcnc.vcnc.plan import planned_duration_s, profile_moves
 
-    if program.dialect != "linuxcnc":
+    klartext = _klartext(program)
+    if program.dialect not in ("linuxcnc", "heidenhain"):
         raise InputError(program.path, None, f"a {program.dialect} program: the tighter tolerance is written as"
-                                             " LinuxCNC's G64 P; insert the blocks by hand")
-    settings = {s.line for s in path_settings(program)}
+                                             " LinuxCNC's G64 P or Klartext cycle 32; insert the blocks by hand")
+    settings = own_path_control_lines(program)
+    lines, held = program.moves.line, (program.moves.flags & FLAG_DERIVED) != 0
     before: dict[int, list[str]] = {}
     after: dict[int, list[str]] = {}
     done: list[TighterRange] = []
@@ -217,28 +230,45 @@ def tightened_text(program: Program, profile: MachineProfile, tightening: Tighte
         if own:
             skipped.append(f"lines {r.lines}: line {own[0]} sets the program's own path control")
             continue
+        if klartext and held[(lines >= r.first_line - 1) & (lines <= r.last_line + 1)].any():
+            # the control holds a move until the RND / CHF / APPR / DEP after it: cycle 32 between them would
+            # apply to other moves than their lines say
+            skipped.append(f"lines {r.lines}: next to a rounding, chamfer, approach or departure (RND / CHF / APPR / DEP)")
+            continue
         # ASCII only ("um"): the program's other bytes are written back as they were read
-        before[r.first_line] = [f"{r.before} ({marker}: corners rounded within"
-                                f" {tightening.tolerance_mm * 1e3:.4g} um)"]
-        after[r.last_line] = [f"{r.after} ({marker}: the program's own path control again)"]
+        why = f"{marker}: corners rounded within {tightening.tolerance_mm * 1e3:.4g} um"
+        again_own = f"{marker}: the program's own path control again"
+        if klartext:  # cycle 32 in two numbered blocks; the restoring pair before the block after the range
+            before.setdefault(r.first_line, []).extend(f"{{N}} {b} ; {why}" for b in r.before.split(" / "))
+            before.setdefault(r.last_line + 1, []).extend(
+                f"{{N}} {b} ; {again_own}" for b in ("CYCL DEF 32.0 TOLERANCE", r.after.split(" (")[0]))
+        else:
+            before[r.first_line] = [f"{r.before} ({why})"]
+            after[r.last_line] = [f"{r.after} ({again_own})"]
         done.append(r)
-    text = lines_inserted(program.text, before, after)
+    if klartext:
+        res = insert_points(program, {}, min_decimals=0, marker=marker, blocks=before)
+        text, origin, put = res.text, res.line_origin, res.line_inserted
+    else:
+        text = lines_inserted(program.text, before, after)
     again = reread(program, text)
     mv, nv = program.moves, again.moves
     if not same_moves(program, again):
         raise CorrectionError(program.path, None, "the program with the tighter tolerance re-reads to other moves")
-    # the re-read lines: each original line moves down by the lines inserted before it
-    shift = np.zeros(program.text.count("\n") + 3, dtype=np.int64)
-    for ln in before:
-        shift[ln:] += 1
-    for ln in after:
-        shift[ln + 1:] += 1
+    if klartext:  # each re-read move on the original line it came from, not on an inserted one
+        ok_lines = bool(np.array_equal(origin[nv.line - 1], mv.line) and not put[nv.line - 1].any())
+    else:  # each original line moves down by the lines inserted before it
+        shift = np.zeros(program.text.count("\n") + 3, dtype=np.int64)
+        for ln in before:
+            shift[ln:] += 1
+        for ln in after:
+            shift[ln + 1:] += 1
+        ok_lines = np.array_equal(nv.line, mv.line + shift[mv.line])
     inside = np.zeros(len(mv), dtype=np.bool_)
     for r in done:
         inside |= (mv.line >= r.first_line) & (mv.line <= r.last_line) & (mv.kind != MOVE_RAPID)
     eff = profile_moves(program, profile).blend_tol_mm
     want_in = np.where(np.isnan(eff) | (eff > tightening.tolerance_mm), tightening.tolerance_mm, mv.blend_tol_mm)
-    ok_lines = np.array_equal(nv.line, mv.line + shift[mv.line])
     ok_in = np.array_equal(nv.blend_tol_mm[inside], want_in[inside], equal_nan=True)
     kept = ~inside & ~np.isnan(mv.blend_tol_mm)
     restored = ~inside & np.isnan(mv.blend_tol_mm)
