@@ -127,3 +127,11 @@ def cli_output(res: Any) -> str:
     from ilcnc._jit import COMPILE_NOTICE
 
     return "".join(ln for ln in res.output.splitlines(keepends=True) if not ln.startswith(COMPILE_NOTICE))
+
+
+def with_refine(profile: Any, **kw: Any) -> Any:
+    """``profile`` with some ``learning.refine`` keys replaced (a copy)."""
+    import dataclasses
+
+    return dataclasses.replace(profile, learning=dataclasses.replace(
+        profile.learning, refine=dataclasses.replace(profile.learning.refine, **kw)))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from pathlib import Path
@@ -19,7 +18,7 @@ from ilcnc.program.insert import MARKER, insert_points
 from ilcnc.program.model import MOVE_RAPID
 from ilcnc.vcnc.settle import settle_time_s
 
-from .conftest import OWN, REPO
+from .conftest import OWN, REPO, with_refine
 
 LCNC = REPO / "configs" / "linuxcnc-sim.yaml"
 MILL = REPO / "configs" / "example-mill.yaml"
@@ -30,11 +29,6 @@ runner = CliRunner()
 def _run(*args: object) -> tuple[int, str]:
     res = runner.invoke(app, [str(a) for a in args])
     return res.exit_code, res.stdout
-
-
-def _with_refine(profile, **kw):
-    return dataclasses.replace(profile, learning=dataclasses.replace(
-        profile.learning, refine=dataclasses.replace(profile.learning.refine, **kw)))
 
 
 def test_the_settle_is_the_tail_of_the_drive_models_step() -> None:
@@ -100,11 +94,11 @@ def test_settles_stay_within_their_budget_and_can_be_switched_off() -> None:
     # a budget for the two largest lags only (each ~0.2 s of a 574 s program)
     two = sorted(full.plan.settles.values(), reverse=True)[:2]
     pct = 100.0 * (sum(two) + 0.001) / t0
-    part = refine_for_learning(prog, _with_refine(prof, settle_budget_pct=pct))
+    part = refine_for_learning(prog, with_refine(prof, settle_budget_pct=pct))
     assert len(part.plan.settles) == 2 and part.plan.passed["settle beyond settle_budget_pct"] == 2
     biggest = sorted((s.peak_mm, s.settle_s) for s in full.plan.sites if s.kind == "rapid")[-2:]
     assert sorted(s.settle_s for s in part.plan.sites if s.settle_s > 0) == sorted(t for _, t in biggest)
-    off = refine_for_learning(prog, _with_refine(prof, settle="off"))
+    off = refine_for_learning(prog, with_refine(prof, settle="off"))
     assert not off.plan.settles and not off.inserted.settled and "G4" not in off.program.text
     assert off.program.text == insert_points(prog, off.plan.points, min_decimals=prof.min_decimals("mm")).text
     # the example mill checks in-position after every rapid: no lag is left, no settle is planned

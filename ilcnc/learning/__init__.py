@@ -36,6 +36,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     'move_limits': ('ZERO_LENGTH_MM', 'keep_moves_forward', 'repeated_points', 'start_corrections', 'tie_repeated_points'),
     'refine': ('RefinePlan', 'RefineSite', 'plan_refinement', 'refine_threshold_mm'),
+    'refine_tolerance': ('FLOOR_STEPS', 'MARGIN', 'TARGET_SHARE', 'ToleranceRefinement', 'plan_tolerance', 'write_tolerance'),
     'step_files': ('identify_file', 'read_step_csv'),
     'time_design': (
         'AxisDesign', 'DEFAULT_F_MAX_HZ', 'EpsilonCurve', 'LeadOption', 'TuneResult', 'design_time_domain',

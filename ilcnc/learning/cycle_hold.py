@@ -251,6 +251,9 @@ class CycleBudget:
         run's, which is that plan's).
     times0_s : ndarray (M,) or None
         Each move's planned time in the original, s (planned when first needed).
+    spent_s : float
+        Cycle time ``program`` already spends on refinement's tighter tolerance (``learning.refine.tolerance``),
+        s: it counts inside the budget, so the corrections may add that much less.
     """
 
     program: Program
@@ -258,6 +261,7 @@ class CycleBudget:
     rewrite: Callable[[NDArray[np.float64], NDArray[np.float64] | None], Program]
     cycle0_s: float | None = None
     times0_s: NDArray[np.float64] | None = None
+    spent_s: float = 0.0
 
     def _original(self) -> None:
         from ilcnc.vcnc.plan import planned_move_times_s
@@ -274,7 +278,7 @@ class CycleBudget:
 
     def limit_s(self, feed_law: FeedLaw | None = None) -> float:
         """The longest cycle time the corrections may give, s (with feed learning, at least its own budget's)."""
-        limit = self.original_s * (1.0 + self.profile.learning.cycle_budget_pct / 100.0)
+        limit = self.original_s * (1.0 + self.profile.learning.cycle_budget_pct / 100.0) - self.spent_s
         return max(limit, feed_law.cycle0_s + feed_law.budget_s) if feed_law is not None else limit
 
     def planned_s(self, program: Program) -> float:

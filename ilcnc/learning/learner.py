@@ -678,6 +678,7 @@ def learn_virtual(
     on_record: Callable[[IterationRecord], None] | None = None,
     error: str | None = None,
     initial_feed_scale: NDArray[np.float64] | None = None,
+    cycle_spent_s: float = 0.0,
 ) -> LearnResult:
     """Learn corrections for a program on the virtual CNC of a profile.
 
@@ -717,6 +718,9 @@ def learn_virtual(
     initial_feed_scale : ndarray (M,), optional
         Continue a run with ``learning.refine.feed: on``: the feed factor of every move of the program it
         continues (1: as programmed).
+    cycle_spent_s : float
+        Planned cycle time the refinement's tighter tolerance already added to ``program``, s: counted inside
+        ``learning.cycle_budget_pct`` (:class:`ilcnc.learning.cycle_hold.CycleBudget`).
 
     Returns
     -------
@@ -810,7 +814,7 @@ def learn_virtual(
                            message="the program has no G01 command to correct", best=0, frozen=frozen,
                            frozen_reasons=why,
                            air_commands=n_air, cutting=rule)
-    budget = cycle_budget(program, profile, records[0].cycle_time_s if prog0 is program else None)
+    budget = cycle_budget(program, profile, records[0].cycle_time_s if prog0 is program else None, cycle_spent_s)
     it = 0
     # learning.refine.feed: when the geometry stalls (or its step is refused twice), the next step lowers the
     # feed where the error is left (the geometry held), then the geometry learns on at the new feeds
@@ -950,13 +954,15 @@ def learn_virtual(
                        air_commands=n_air, cutting=rule, feed=feed_out)
 
 
-def cycle_budget(program: Program, profile: MachineProfile, cycle0_s: float | None = None) -> CycleBudget:
+def cycle_budget(program: Program, profile: MachineProfile, cycle0_s: float | None = None,
+                 spent_s: float = 0.0) -> CycleBudget:
     """The cycle-time budget of learning ``program`` (:class:`CycleBudget`; ``cycle0_s``: its planned cycle time
-    when known), its corrected programs written as :func:`program_with_corrections` writes them."""
+    when known; ``spent_s``: what a tighter tolerance of the refinement already spent of it), its corrected
+    programs written as :func:`program_with_corrections` writes them."""
     def rewrite(u: NDArray[np.float64], feed_scale: NDArray[np.float64] | None) -> Program:
         return program_with_corrections(program, u, profile, feed_scale=feed_scale)[1]
 
-    return CycleBudget(program, profile, rewrite, cycle0_s)
+    return CycleBudget(program, profile, rewrite, cycle0_s, spent_s=spent_s)
 
 
 def hold_step(budget: CycleBudget, u_prev_mm: NDArray[np.float64], u_new_mm: NDArray[np.float64],
@@ -1068,6 +1074,12 @@ class Refinement:
     inserted: Any
     first_stats: dict[str, float]
     cycle_time_s: tuple[float, float]
+    tolerance: Any = None
+
+    @property
+    def changed(self) -> bool:
+        """Whether the refined program differs from the original (points, settles or a tighter tolerance)."""
+        return bool(self.inserted.changed) or (self.tolerance is not None and self.tolerance.written is not None)
 
     @property
     def cycle_change(self) -> float:
@@ -1080,6 +1092,8 @@ class Refinement:
                     "settled": {str(k): v for k, v in sorted(self.inserted.settled.items())},
                     "renumbered": bool(self.inserted.renumbered), "first_run_mm": dict(self.first_stats),
                     "cycle_time_s": {"original": self.cycle_time_s[0], "refined": self.cycle_time_s[1]}})
+        if self.tolerance is not None:
+            out["tolerance"] = self.tolerance.summary()
         return out
 
     def notes(self) -> list[str]:
@@ -1098,6 +1112,8 @@ class Refinement:
             out.append(f"refined: {plural(len(self.inserted.settled), 'settle')} (dwell) before the first feed after"
                        f" a rapid where the axes still lag it, {total:.3f} s in all (rapids on lines"
                        f" {', '.join(rapids)}{more})")
+        if self.tolerance is not None:
+            out.extend(self.tolerance.notes())
         for reason, n in sorted(js["passed"].items()):
             out.append(f"refine: {plural(n, 'spot')} left alone ({reason})")
         reasons: dict[str, int] = {}
@@ -1124,15 +1140,18 @@ def refine_for_learning(original: Program, profile: MachineProfile) -> Refinemen
     t0 = float(sim.cycle_time_s)
     dist, seg, u = sim.error.dist_mm, sim.error.seg, sim.error.u
     del sim
-    return refine_from_errors(original, profile, dist_mm=dist, seg=seg, u=u, first_stats=first, cycle_time_s=t0)
+    return refine_from_errors(original, profile, dist_mm=dist, seg=seg, u=u, first_stats=first, cycle_time_s=t0,
+                              tighten=True)
 
 
 def refine_from_errors(original: Program, profile: MachineProfile, *, dist_mm: NDArray[np.float64],
                        seg: NDArray[np.int64], u: NDArray[np.float64], first_stats: ErrorFigures,
-                       cycle_time_s: float | None = None) -> Refinement:
+                       cycle_time_s: float | None = None, tighten: bool = False) -> Refinement:
     """Refine ``original`` where a run of it erred: the run's per-sample contour error (mm), the move of each
     sample's foot and its path parameter (a virtual run, or the machine's log of the original program: no
-    extra machine run is needed); ``cycle_time_s`` the original's planned cycle time (planned when absent)."""
+    extra machine run is needed); ``cycle_time_s`` the original's planned cycle time (planned when absent).
+    ``tighten``: a virtual first run, so ``learning.refine.tolerance`` may apply (:mod:`ilcnc.learning.refine_tolerance`;
+    a log's first step would learn the original's rounding at the tightened corners)."""
     from ilcnc.learning.refine import plan_refinement
     from ilcnc.program import read_program
     from ilcnc.program.insert import insert_points
@@ -1141,8 +1160,26 @@ def refine_from_errors(original: Program, profile: MachineProfile, *, dist_mm: N
     _rule, classes = profile_move_classes(original, profile)
     t0 = float(plan_program(original, profile).duration_s) if cycle_time_s is None else float(cycle_time_s)
     plan = plan_refinement(original, profile, dist_mm=dist_mm, seg=seg, u=u, classes=classes, cycle_time_s=t0)
+    tol = None
+    if profile.learning.refine.tolerance == "on":
+        from ilcnc.learning.refine_tolerance import ToleranceRefinement, plan_tolerance
+
+        tol = plan_tolerance(original, profile, dist_mm=dist_mm, seg=seg, u=u, classes=classes, cycle_time_s=t0,
+                             lines_used=plan.n_points + len(plan.settles)) if tighten else ToleranceRefinement(
+            remark="learning.refine.tolerance is virtual only: a log's first step would learn the original's rounding"
+                   " at the tightened corners")
     res = insert_points(original, plan.points, min_decimals=profile.min_decimals(original.units),
                         settles=plan.settles)
-    refined = read_program(original.path, default_units=original.units, data=res.text.encode("latin-1"))
-    t1 = float(plan_program(refined, profile).duration_s) if res.changed else t0
-    return Refinement(refined, plan, res, dict(first_stats), (t0, t1))
+    text = res.text
+    if tol is not None and tol.tightening is not None:
+        from ilcnc.learning.refine_tolerance import write_tolerance
+
+        pointed = read_program(original.path, default_units=original.units, data=text.encode("latin-1"))
+        text = write_tolerance(pointed, res.line_origin, res.line_inserted, profile, tol)
+    refined = read_program(original.path, default_units=original.units, data=text.encode("latin-1"))
+    out = Refinement(refined, plan, res, dict(first_stats), (t0, t0), tol)
+    if out.changed:
+        out.cycle_time_s = (t0, float(plan_program(refined, profile).duration_s))
+    if tol is not None and tol.written is not None:  # what the tolerance spends, inside learning.cycle_budget_pct
+        tol.spent_s = out.cycle_time_s[1] - float(plan_program(pointed, profile).duration_s)
+    return out

@@ -748,6 +748,18 @@ SPECS: tuple[Spec, ...] = (
     _f("learning.refine.settle_budget_pct", "Most cycle time the settles may add, % of the original program's"
        " planned cycle time; where they would need more, the largest lags are settled first and the rest reported.",
        "%", 0, 10, default=0.5),
+    _c("learning.refine.tolerance", "A tighter corner tolerance (G-code G64 P, Klartext cycle 32; the program's own"
+       " path control after each range) on the moves that end at the corners where the first run's error is mostly"
+       " the planner's rounding within the tolerance the program allows and would stay above about half the first"
+       " run's cutting max after learning (no corrected end point takes that rounding away): the largest first,"
+       " within tolerance_budget_pct of cycle time (docs/learning.md). Only with refinement, on the virtual CNC;"
+       " LinuxCNC G-code and Klartext only.", ("off", "on"), default="off"),
+    _f("learning.refine.tolerance_share", "The tighter tolerance as a share of the target, half the first run's cutting"
+       " max (the rest of the target is left for the lag that learning leaves), never below twice"
+       " machine.resolution_mm.", "", 0, 1, lo_open=True, default=0.5),
+    _f("learning.refine.tolerance_budget_pct", "Most cycle time the tighter tolerance may add, % of the original"
+       " program's planned cycle time (planned before learning); the corners beyond it are reported.", "%", 0, 10,
+       default=2.0),
     _f("learning.refine.min_spacing_periods", "Least distance of an inserted point from another end point, in servo"
        " periods of motion at the move's feed (a controller runs at most one block per period).", "", 1, 1000,
        default=3.0),

@@ -427,6 +427,12 @@ class RefineSection:
         ``"on"``: a dwell before the first feed after a rapid where the first run shows the rapid's lag.
     settle_budget_pct : float
         Most cycle time the settles may add, % of the original's.
+    tolerance : str
+        ``"on"``: a tighter corner tolerance where the first run's error is mostly the planner's rounding.
+    tolerance_share : float
+        The tighter tolerance, share of half the first run's cutting max (at least twice the resolution).
+    tolerance_budget_pct : float
+        Most cycle time it may add, % of the original's.
     """
 
     enabled: str = default_of("learning.refine.enabled")
@@ -441,6 +447,9 @@ class RefineSection:
     feed_min_ratio: float = default_of("learning.refine.feed_min_ratio")
     settle: str = default_of("learning.refine.settle")
     settle_budget_pct: float = default_of("learning.refine.settle_budget_pct")
+    tolerance: str = default_of("learning.refine.tolerance")
+    tolerance_share: float = default_of("learning.refine.tolerance_share")
+    tolerance_budget_pct: float = default_of("learning.refine.tolerance_budget_pct")
 
     def to_dict(self) -> dict[str, Any]:
         out = {k: v for k, v in vars(self).items() if v is not None}

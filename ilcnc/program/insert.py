@@ -379,6 +379,7 @@ def insert_points(
     marker: str = "ilcnc refine",
     verify: bool = True,
     settles: Mapping[int, float] | None = None,
+    blocks: Mapping[int, Sequence[str]] | None = None,
 ) -> InsertResult:
     """Split straight feeds of ``program`` at fractions of their length by inserting lines.
 
@@ -403,6 +404,10 @@ def insert_points(
         line (Fanuc ``G4 X``; Klartext cycle 9 in two blocks) placed directly before the move's line, before
         any point of the move; whole milliseconds, rounded up. A move whose line holds other moves or runs
         more than once is left alone and listed in :attr:`InsertResult.skipped`.
+    blocks : mapping of int to list of str, optional
+        Source line -> whole lines to put before it, after its settle (not moves: a tighter tolerance,
+        :func:`ilcnc.vcnc.tighten.tightened_text`), each with its own comment; ``{N}`` at the start of a Klartext
+        block is its block number (the blocks after it are renumbered).
 
     Returns
     -------
@@ -425,6 +430,8 @@ def insert_points(
     result = InsertResult(text=program.text)
     n_lines = program.n_lines
     settle_texts = _settle_texts(program, settles or {}, _comment(program, marker)[0], result)
+    for ln, texts in (blocks or {}).items():
+        settle_texts.setdefault(int(ln), []).extend(texts)
     if not want and not settle_texts:
         result.line_origin = np.arange(1, n_lines + 1, dtype=np.int32)
         result.line_inserted = np.zeros(n_lines, dtype=bool)

@@ -11,8 +11,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     'batch': ('BatchJob', 'PartResult', 'ReturnedPart', 'ShippedPart', 'folder_programs', 'jobs_from_path',
               'learn_shipped', 'retried', 'run_batch', 'ship_part', 'summary_csv', 'write_returned'),
     'corners': (
-        'CornerReport', 'DEFAULT_CORNERS', 'ROUNDING_SHARE', 'TIGHTER_MARKER', 'TightenedProgram', 'TighterRange',
-        'Tightening', 'corner_report', 'learned_corner_report', 'setting_text', 'tightened_text', 'write_tightened'
+        'CornerReport', 'DEFAULT_CORNERS', 'corner_report', 'learned_corner_report', 'setting_text',
+        'write_tightened'
     ),
     'corrections': ('read_corrections', 'write_corrections'),
     'diff': (
@@ -43,8 +43,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         'profile_from_ini', 'startup_path_control', 'write_ini_profile'
     ),
     'linuxcnc_prepare': (
-        'DEFAULT_SAMPLER_DEPTH', 'PathEdit', 'PathRange', 'PathSetting', 'Preparation', 'path_ranges',
-        'path_settings', 'prepare_run', 'sampler_hal'
+        'DEFAULT_SAMPLER_DEPTH', 'PathEdit', 'PathRange', 'Preparation', 'path_ranges', 'prepare_run', 'sampler_hal'
     ),
     'path_control_edit': ('MARK', 'apply_path_edits', 'ready_program_text'),
     'log_identity': (

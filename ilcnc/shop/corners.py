@@ -24,82 +24,35 @@ import numpy as np
 from ilcnc._jit import PLAN_ONLY_WEIGHT, kernels_for
 from ilcnc.outcomes import PathMode
 from ilcnc.profile.sections import MachineProfile
-from ilcnc.program.model import MOVE_RAPID, Program
-from ilcnc.shop.linuxcnc_prepare import PathSetting, path_settings
-from ilcnc.units import MM_PER_INCH, length_word
+from ilcnc.program.model import Program
+from ilcnc.units import length_word
 from ilcnc.vcnc.plan_base import nominal_samples
 from ilcnc.vcnc.rounding import (
     CornerError,
     VertexMax,
     corner_errors,
     planner_rounding,
-    tolerance_cost,
     vertex_tolerances,
 )
+from ilcnc.vcnc.tighten import (
+    ROUNDING_SHARE,
+    TightenedProgram,
+    Tightening,
+    tightened_text,
+    tightening_for,
+    tolerance_block,
+    tolerance_word_mm,
+)
 
-__all__ = [
-    "DEFAULT_CORNERS",
-    "ROUNDING_SHARE",
-    "TIGHTER_MARKER",
-    "CornerReport",
-    "TightenedProgram",
-    "Tightening",
-    "TighterRange",
-    "corner_report",
-    "learned_corner_report",
-    "setting_text",
-    "tightened_text",
-    "write_tightened",
-]
+__all__ = ["DEFAULT_CORNERS", "CornerReport", "corner_report", "learned_corner_report", "setting_text",
+           "write_tightened"]
 
 #: How many corners the report lists by default.
 DEFAULT_CORNERS = 5
-#: A corner whose planner rounding is at least this share of its maximum gets a tighter tolerance suggested.
-ROUNDING_SHARE = 0.5
 
 
 def _klartext(program: Program) -> bool:
     return program.dialect == "heidenhain"
-
-
-def _set_word(program: Program, tol_mm: float) -> str:
-    """The block(s) that set a blend tolerance in the program's dialect and units."""
-    w = length_word(tol_mm, program.units)
-    return f"CYCL DEF 32.0 TOLERANCE / CYCL DEF 32.1 T{w}" if _klartext(program) else f"G64 P{w}"
-
-
-def _word_mm(tol_mm: float, units: str) -> float:
-    """``tol_mm`` as the number a program word can carry (:func:`ilcnc.units.length_word`'s decimals), rounded down
-    so that the written tolerance still bounds the rounding to at most ``tol_mm`` (at least one step), mm."""
-    scale = (1e5 / MM_PER_INCH) if units == "inch" else 1e4  # steps per mm
-    return max(math.floor(tol_mm * scale * (1 + 1e-12)), 1) / scale
-
-
-def _own_word(program: Program, profile: MachineProfile, move: int) -> str:
-    """The block(s) that give ``move`` back the path control it runs in: the program's own, else the profile's."""
-    own = float(program.moves.blend_tol_mm[move])
-    mode = PathMode.of_tolerance(own)
-    if _klartext(program):
-        if mode is PathMode.UNSET:
-            return "CYCL DEF 32.1 (the machine's tolerance again)"
-        return f"CYCL DEF 32.1 T{length_word(max(own, 0.0), program.units)}"
-    if mode is PathMode.UNSET:
-        pc = profile.planner.path_control
-        if pc != "tolerance":
-            return pc.upper()
-        return f"G64 P{length_word(profile.planner.corner_tolerance_mm, program.units)}"
-    if mode is PathMode.BOUNDED:
-        return f"G64 P{length_word(own, program.units)}"
-    return str(mode)
-
-
-def _setting_word(st: PathSetting) -> str:
-    """A G-code program's own path-control block, from its words as written (P and Q in the program's units)."""
-    if st.mode is PathMode.BOUNDED:
-        return f"G64 P{st.p:g}" + (f" Q{st.q:g}" if st.q is not None else "")
-    if st.mode is PathMode.UNBOUNDED:
-        return "G64" + (f" Q{st.q:g}" if st.q is not None else "")
-    return str(st.mode)
 
 
 def setting_text(program: Program, profile: MachineProfile, c: CornerError, *, short: bool = False) -> str:
@@ -111,7 +64,7 @@ def setting_text(program: Program, profile: MachineProfile, c: CornerError, *, s
             f"the profile's planner.path_control {profile.planner.path_control}"
         return how if short else f"an exact stop ({how})"
     word = f"cycle 32 T{length_word(c.tolerance_mm, program.units)}" if _klartext(program) else \
-        _set_word(program, c.tolerance_mm)
+        tolerance_block(program, c.tolerance_mm)
     quarter = f"{c.tolerance_mm:g} mm, a quarter of the move"
     if not c.set_by_program:
         pc = profile.planner.path_control
@@ -124,56 +77,6 @@ def setting_text(program: Program, profile: MachineProfile, c: CornerError, *, s
     if c.quarter:
         return f"{quarter} (the program's tolerance is larger)"
     return f"{word} (program)" if short else f"{word} (the program's)"
-
-
-@dataclass(frozen=True, kw_only=True)
-class TighterRange:
-    """Lines that get a tighter tolerance: the block to put before them and the one that restores the mode after."""
-
-    first_line: int
-    last_line: int
-    before: str
-    after: str
-    rounding_mm: float  #: the planner's largest rounding at its corners now
-    rounding_after_mm: float  #: and with the tighter tolerance (planned)
-
-    def to_json(self) -> dict[str, Any]:
-        return {"first_line": self.first_line, "last_line": self.last_line, "before": self.before,
-                "after": self.after, "rounding_mm": self.rounding_mm, "rounding_after_mm": self.rounding_after_mm}
-
-    @property
-    def lines(self) -> str:
-        return str(self.first_line) if self.first_line == self.last_line else f"{self.first_line}-{self.last_line}"
-
-
-@dataclass(frozen=True, kw_only=True)
-class Tightening:
-    """A tighter corner tolerance on some line ranges and what it costs (planned, no drive run)."""
-
-    tolerance_mm: float
-    word: str
-    ranges: list[TighterRange]
-    moves: int
-    cycle_before_s: float
-    cycle_after_s: float
-
-    @property
-    def extra_pct(self) -> float:
-        return 100.0 * (self.cycle_after_s / self.cycle_before_s - 1.0) if self.cycle_before_s > 0 else 0.0
-
-    def to_json(self) -> dict[str, Any]:
-        return {"tolerance_mm": self.tolerance_mm, "word": self.word, "moves": self.moves,
-                "cycle_time_s": self.cycle_before_s, "cycle_time_after_s": self.cycle_after_s,
-                "cycle_time_change_pct": self.extra_pct, "ranges": [r.to_json() for r in self.ranges]}
-
-    def text(self) -> str:
-        lines = ", ".join(r.lines for r in self.ranges)
-        now = max(r.rounding_mm for r in self.ranges) * 1e3
-        after = max(r.rounding_after_mm for r in self.ranges) * 1e3
-        return (f"{self.word} on line{'s' if len(self.ranges) > 1 or '-' in lines else ''} {lines} (the program's own"
-                f" mode after each) bounds the planner's rounding there to {self.tolerance_mm * 1e3:.4g} µm (now up to"
-                f" {now:.2f} µm, planned {after:.2f} µm): cycle time {self.cycle_before_s:.2f} →"
-                f" {self.cycle_after_s:.2f} s ({self.extra_pct:+.2f} %)")
 
 
 @dataclass(kw_only=True)
@@ -234,19 +137,6 @@ class CornerReport:
         }
 
 
-def _ranges(program: Program, chosen: list[CornerError]) -> list[tuple[int, int, list[CornerError]]]:
-    """The line of the move that ends at each chosen corner, merged where they are adjacent lines."""
-    line = program.moves.line
-    per = sorted(((int(line[c.vertex - 1]), c) for c in chosen), key=lambda t: t[0])
-    out: list[tuple[int, int, list[CornerError]]] = []
-    for ln, c in per:
-        if out and ln <= out[-1][1] + 1:
-            out[-1] = (out[-1][0], max(out[-1][1], ln), out[-1][2] + [c])
-        else:
-            out.append((ln, ln, [c]))
-    return out
-
-
 def corner_report(program: Program, profile: MachineProfile, vertices: VertexMax, *, top: int = DEFAULT_CORNERS,
                   target_um: float | None = None, cycle_time_s: float | None = None) -> CornerReport:
     """The report of a run whose cutting error near each end point of ``program`` (the drawing) is ``vertices``.
@@ -288,36 +178,16 @@ def _corner_report(program: Program, profile: MachineProfile, vertices: VertexMa
         rep.notes.append(f"no listed corner's error is mostly ({ROUNDING_SHARE:.0%} or more) the planner's rounding:"
                          " a tighter tolerance would not lower it much")
         return rep
-    target = _word_mm(target_um * 1e-3 if target_um is not None else 0.5 * min(c.tolerance_mm for c in mostly),
+    target = tolerance_word_mm(target_um * 1e-3 if target_um is not None else 0.5 * min(c.tolerance_mm for c in mostly),
                       program.units)
     chosen = [c for c in mostly if c.rounding_mm > target]
     if not chosen:
         rep.notes.append(f"the planner's rounding at the listed corners is already within {target * 1e3:g} µm")
         return rep
-    ranges = _ranges(program, chosen)
-    mv = program.moves
-    sel = np.zeros(len(mv), dtype=np.bool_)
-    for first, last, _cs in ranges:
-        sel |= (mv.line >= first) & (mv.line <= last) & (mv.kind != MOVE_RAPID)
-    cost = tolerance_cost(program, profile, sel, target, cycle_before_s=cycle_time_s)
-    if cost.moves == 0:
+    rep.tightening = tightening_for(program, profile, chosen, target, cycle_time_s=cycle_time_s)
+    if rep.tightening is None:
         rep.notes.append(f"the moves at these corners already run within {target * 1e3:g} µm or stop there")
         return rep
-    word = _set_word(program, target)
-    settings = [] if _klartext(program) else path_settings(program)
-    out: list[TighterRange] = []
-    for first, last, cs in ranges:
-        last_move = int(np.flatnonzero(sel & (mv.line <= last))[-1])
-        after = np.nan_to_num(cost.rounding_after.max_mm[[c.vertex for c in cs]])
-        # the program's own setting in force there, as written (its Q too: LinuxCNC merges short collinear G1s
-        # within Q, which defaults to P, so a G64 P written without the program's Q0 would change that)
-        gov = [st for st in settings if st.line <= first]
-        q = f" Q{gov[-1].q:g}" if gov and gov[-1].q is not None else ""
-        own = _setting_word(gov[-1]) if gov else _own_word(program, profile, last_move)
-        out.append(TighterRange(first_line=first, last_line=last, before=word + q, after=own,
-                                rounding_mm=max(c.rounding_mm for c in cs), rounding_after_mm=float(after.max())))
-    rep.tightening = Tightening(tolerance_mm=target, word=word, ranges=out, moves=cost.moves,
-                                cycle_before_s=cost.cycle_before_s, cycle_after_s=cost.cycle_after_s)
     if program.dialect in ("grbl", "fanuc"):
         rep.notes.append(f"G64 P is LinuxCNC's word: a {program.dialect} control sets its corner tolerance in its"
                          " settings, not per line (grbl: $11 junction deviation); the planned cost assumes a control that"
@@ -343,88 +213,6 @@ def learned_corner_report(state_dir: Path, output: Path, profile: MachineProfile
     rep.judged = (f"{Path(output).name} on the virtual CNC, judged against the original's path (cutting max"
                   f" {run.stats.max_mm * 1e3:.2f} µm); the lines are the original's")
     return rep
-
-
-#: The comment that marks every line :func:`tightened_text` inserts.
-TIGHTER_MARKER = "ilcnc tighter"
-
-
-@dataclass(frozen=True, kw_only=True)
-class TightenedProgram:
-    """A G-code program with the tighter tolerance written in (:func:`tightened_text`)."""
-
-    text: str
-    ranges: list[TighterRange]  #: the ranges written
-    skipped: list[str]  #: the ranges left out, each with its reason
-    cycle_time_s: float  #: the written program's planned cycle time, s
-
-
-def tightened_text(program: Program, profile: MachineProfile, tightening: Tightening) -> TightenedProgram:
-    """``program``'s text with ``tightening``'s ``G64 P`` before each range and the program's own mode after it.
-
-    Only a LinuxCNC G-code program: ``G64 P`` is LinuxCNC's word (grbl and Fanuc set their corner tolerance
-    elsewhere), and a Klartext block inserted would renumber the blocks after it. A range in which the program
-    sets its own path control (``G61``/``G64`` on one of its lines) is left out: the block after it would undo
-    the program's. Each inserted line carries the comment ``(ilcnc tighter ...)``. The result is read again and
-    checked: the same moves, bit for bit, and the tolerance written where it was meant to be.
-
-    Raises
-    ------
-    InputError
-        Not a LinuxCNC G-code program.
-    CorrectionError
-        The text read again is not the program with those tolerances (a defect of ilcnc).
-    """
-    from ilcnc.errors import CorrectionError, InputError
-    from ilcnc.program.insert import lines_inserted, reread, same_moves
-    from ilcnc.vcnc.plan import planned_duration_s, profile_moves
-
-    if program.dialect != "linuxcnc":
-        raise InputError(program.path, None, f"a {program.dialect} program: the tighter tolerance is written as"
-                                             " LinuxCNC's G64 P; insert the blocks by hand")
-    settings = {s.line for s in path_settings(program)}
-    before: dict[int, list[str]] = {}
-    after: dict[int, list[str]] = {}
-    done: list[TighterRange] = []
-    skipped: list[str] = []
-    for r in tightening.ranges:
-        own = sorted(ln for ln in settings if r.first_line <= ln <= r.last_line)
-        if own:
-            skipped.append(f"lines {r.lines}: line {own[0]} sets the program's own path control")
-            continue
-        # ASCII only ("um"): the program's other bytes are written back as they were read
-        before[r.first_line] = [f"{r.before} ({TIGHTER_MARKER}: corners rounded within"
-                                f" {tightening.tolerance_mm * 1e3:.4g} um)"]
-        after[r.last_line] = [f"{r.after} ({TIGHTER_MARKER}: the program's own path control again)"]
-        done.append(r)
-    text = lines_inserted(program.text, before, after)
-    again = reread(program, text)
-    mv, nv = program.moves, again.moves
-    if not same_moves(program, again):
-        raise CorrectionError(program.path, None, "the program with the tighter tolerance re-reads to other moves")
-    # the re-read lines: each original line moves down by the lines inserted before it
-    shift = np.zeros(program.text.count("\n") + 3, dtype=np.int64)
-    for ln in before:
-        shift[ln:] += 1
-    for ln in after:
-        shift[ln + 1:] += 1
-    inside = np.zeros(len(mv), dtype=np.bool_)
-    for r in done:
-        inside |= (mv.line >= r.first_line) & (mv.line <= r.last_line) & (mv.kind != MOVE_RAPID)
-    eff = profile_moves(program, profile).blend_tol_mm
-    want_in = np.where(np.isnan(eff) | (eff > tightening.tolerance_mm), tightening.tolerance_mm, mv.blend_tol_mm)
-    ok_lines = np.array_equal(nv.line, mv.line + shift[mv.line])
-    ok_in = np.array_equal(nv.blend_tol_mm[inside], want_in[inside], equal_nan=True)
-    kept = ~inside & ~np.isnan(mv.blend_tol_mm)
-    restored = ~inside & np.isnan(mv.blend_tol_mm)
-    ok_out = np.array_equal(nv.blend_tol_mm[kept], mv.blend_tol_mm[kept]) and bool(np.all(
-        np.isnan(nv.blend_tol_mm[restored]) | (nv.blend_tol_mm[restored] == profile.planner.corner_tolerance_mm)
-        | (profile.planner.path_control != "tolerance")))
-    if not (ok_lines and ok_in and ok_out):
-        raise CorrectionError(program.path, None, "the program with the tighter tolerance re-reads to other path"
-                                                  " control than was meant")
-    return TightenedProgram(text=text, ranges=done, skipped=skipped, cycle_time_s=planned_duration_s(again, profile))
-
 
 
 def write_tightened(program: Program, profile: MachineProfile, report: CornerReport | None, out: Path, *,

@@ -11,7 +11,6 @@ record the run and learn from its log.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,20 +23,17 @@ from ilcnc.errors import InputError
 from ilcnc.outcomes import PathMode
 from ilcnc.profile.load import load_profile
 from ilcnc.program import read_program
-from ilcnc.program.expr import Parameters
-from ilcnc.program.gcode_lexer import Lexer
 from ilcnc.program.model import MOVE_RAPID, Program
+from ilcnc.program.path_control import PathSetting, path_settings
 from ilcnc.shop.inspect import corner_rounding_warnings
 from ilcnc.shop.linuxcnc_config import read_ini_file
 from ilcnc.shop.linuxcnc_profile import joints_of_axes, startup_path_control
 from ilcnc.units import AXIS_NAMES, MM_PER_INCH, length_word
 
-__all__ = ["DEFAULT_SAMPLER_DEPTH", "PathEdit", "PathRange", "PathSetting", "Preparation", "path_ranges",
-           "path_settings", "prepare_run", "sampler_hal"]
+__all__ = ["DEFAULT_SAMPLER_DEPTH", "PathEdit", "PathRange", "Preparation", "path_ranges", "prepare_run", "sampler_hal"]
 
 #: Sampler FIFO depth: 100 s at 1 kHz, 6.4 MB of shared memory (docs/linuxcnc.md section 2).
 DEFAULT_SAMPLER_DEPTH = 100000
-_PATH_WORD = re.compile(r"(?i)G\s*0*6\s*[14]")
 _MODE_TEXT = {
     PathMode.UNSET: "no G61/G64 in the program",
     PathMode.EXACT_STOP: "G61.1: stop at every block end",
@@ -75,19 +71,6 @@ def sampler_hal(joints: Mapping[str, int], depth: int = DEFAULT_SAMPLER_DEPTH) -
         lines.append(f"net {sig:<11} {src:<19} => sampler.0.pin.{pin}")
     lines.append("setp sampler.0.enable 0")
     return "\n".join(lines) + "\n"
-
-
-@dataclass(frozen=True, kw_only=True)
-class PathSetting:
-    """One block of the program that sets the path control (its source line and words)."""
-
-    line: int
-    mode: PathMode
-    p: float | None  # program units
-    q: float | None
-
-    def to_json(self) -> dict[str, Any]:
-        return {"line": self.line, "mode": str(self.mode), "p": self.p, "q": self.q}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -184,33 +167,6 @@ def path_ranges(program: Program) -> list[PathRange]:
                                 moves=last.moves + 1, mode=mode, tolerance_mm=t)
         else:
             out.append(PathRange(first_line=line, last_line=line, moves=1, mode=mode, tolerance_mm=t))
-    return out
-
-
-def path_settings(program: Program) -> list[PathSetting]:
-    """Every block that sets the path control, with its P and Q as written (literal or evaluated words)."""
-    lexer = Lexer(program.path, Parameters(permissive=True))
-    out: list[PathSetting] = []
-    for no, raw in enumerate(program.text.split("\n"), 1):
-        s = raw.rstrip("\r")
-        if not _PATH_WORD.search(s):
-            continue
-        try:
-            blk = lexer.lex(s, 0, no)
-        except InputError:
-            continue  # the reader already accepted the program; a line it cannot lex alone is not a setting
-        gs = [w.value for w in blk.words if w.letter == "G"]
-        words = {w.letter: w.value for w in blk.words if w.letter in "PQ"}
-        if 61.1 in gs or any(abs(g - 61.1) < 1e-9 for g in gs):
-            mode = PathMode.EXACT_STOP
-        elif 61.0 in gs:
-            mode = PathMode.EXACT_PATH
-        elif 64.0 in gs:
-            mode = PathMode.BOUNDED if words.get("P", 0.0) > 0 else PathMode.UNBOUNDED
-        else:
-            continue
-        out.append(PathSetting(line=no, mode=mode, p=words.get("P") if mode is PathMode.BOUNDED else None,
-                               q=words.get("Q") if mode in (PathMode.BOUNDED, PathMode.UNBOUNDED) else None))
     return out
 
 

@@ -386,7 +386,7 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
         require_learnable(original)  # before the state: a refusal leaves nothing behind
         refinement = refine_for_learning(original, profile) if refine else None  # before the state: a refusal makes none
         state = _new_state(state_dir, original, data, profile, profile_sha,
-                           refined=refinement is not None and refinement.inserted.changed)
+                           refined=refinement is not None and refinement.changed)
         if refinement is not None:
             _store_refinement(state, refinement)
             notes.extend(refinement.notes())
@@ -400,7 +400,8 @@ def _virtual_run(req: LearnRequest, profile: MachineProfile, profile_sha: str, d
         f0 = _stored_feed_scale(state, learning)
     result = learn_virtual(learning, profile, iterations=req.iterations, keep_runs=req.report is not None,
                            initial_corrections_mm=u0, first_iteration=first, progress=progress, on_record=writer,
-                           error=state.error, initial_feed_scale=f0)
+                           error=state.error, initial_feed_scale=f0,
+                           cycle_spent_s=float(((state.part.get("refined") or {}).get("tolerance") or {}).get("spent_s", 0.0)))
     if result.feed is not None:
         notes.extend(result.feed.notes())
     best_rec = result.best_record
@@ -455,7 +456,7 @@ def _refine_from_log(req: LearnRequest, profile: MachineProfile, original: Progr
     assert meas.seg is not None and meas.u is not None and meas.contour_mm is not None and meas.feed_mask is not None
     dist = np.where(meas.feed_mask, meas.contour_mm, np.nan)
     refinement = refine_from_errors(original, profile, dist_mm=dist, seg=meas.seg, u=meas.u, first_stats=meas.stats)
-    if not refinement.inserted.changed:
+    if not refinement.changed:
         return refinement, log, np.zeros(0, dtype=np.int64)
     on_refined = log_on_refined(log, original, refinement.program, refinement.inserted)
     k = on_refined.k[settle_windows(log, original, refinement.inserted.settled)]
@@ -464,7 +465,7 @@ def _refine_from_log(req: LearnRequest, profile: MachineProfile, original: Progr
 
 def _store_refinement(state: LearnState, refinement: Any) -> None:
     """Keep the refined program in the state: it is the learning index of every iteration of the run."""
-    if not refinement.inserted.changed:
+    if not refinement.changed:
         state.part["refined"] = {"file": None, **refinement.to_json()}
         return
     name = f"refined{state.part['suffix']}"
@@ -589,12 +590,12 @@ def _measured_step(req: LearnRequest, profile: MachineProfile, profile_sha: str,
         if req.refine or (profile.learning.refine.enabled == "on" and req.log is not None):
             refinement, refined_log, settled_k = _refine_from_log(req, profile, original)  # refused before any state is made
         state = _new_state(req.state, original, data, profile, profile_sha,
-                           refined=refinement is not None and refinement.inserted.changed)
+                           refined=refinement is not None and refinement.changed)
         made.append(req.state)
         first_data = data
         if refinement is not None:
             _store_refinement(state, refinement)
-            if refinement.inserted.changed:
+            if refinement.changed:
                 first_data = refinement.program.text.encode("latin-1")  # the refined program runs what ran
         name = f"iter-000{state.part['suffix']}"
         sha = state.write_file(name, first_data)

@@ -49,6 +49,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     'run': ('RunFigures', 'run_virtual', 'simulate_figures'),
     'schedule': ('read_schedule', 'schedule_on_samples'),
+    'tighten': ('ROUNDING_SHARE', 'TIGHTER_MARKER', 'TightenedProgram', 'Tightening', 'TighterRange', 'tightened_text',
+                'tightening_for', 'tolerance_block', 'tolerance_word_mm', 'own_path_control_lines'),
     'simulate': ('SimulationResult', 'desired_direction', 'simulate_program'),
     'stream': ('StreamedRun', 'simulate_streamed', 'stream_unsupported'),
     'volumetric': (
