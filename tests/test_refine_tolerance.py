@@ -210,3 +210,20 @@ def test_an_option_out_of_range_is_one_line_naming_it(tmp_path: Path, key: str, 
         load_profile(p)
     msg = str(info.value)
     assert "\n" not in msg and f"learning.refine.{key}" in msg and words in msg and str(p) in msg
+
+
+def test_moved_names_keep_their_old_import_path() -> None:
+    """The writer moved from ilcnc.shop.corners to ilcnc.vcnc.tighten and path_settings to ilcnc.program.path_control:
+    the old paths still give the same objects (the two that are no longer imported there, with a warning)."""
+    import ilcnc.program.path_control as pc
+    import ilcnc.shop.corners as corners
+    import ilcnc.shop.linuxcnc_prepare as prepare
+    import ilcnc.vcnc.tighten as tighten
+
+    assert prepare.path_settings is pc.path_settings and prepare.PathSetting is pc.PathSetting
+    assert corners.tightened_text is tighten.tightened_text and corners.Tightening is tighten.Tightening
+    for name in ("TIGHTER_MARKER", "TighterRange"):
+        with pytest.warns(DeprecationWarning, match=f"moved to ilcnc.vcnc.tighten.{name}"):
+            assert getattr(corners, name) is getattr(tighten, name)
+    with pytest.raises(AttributeError):
+        _ = corners.no_such_name

@@ -242,3 +242,20 @@ def write_tightened(program: Program, profile: MachineProfile, report: CornerRep
     if done.ranges:
         write_atomic(out, done.text.encode("latin-1"), protect=(program.path, *protect))
     return done
+
+
+# Names that moved with the tighter tolerance (learning.refine.tolerance needs them below the shop layer): the
+# old import path keeps working for one release, with a DeprecationWarning naming the new one.
+_MOVED_NAMES: dict[str, str] = {"TIGHTER_MARKER": "ilcnc.vcnc.tighten", "TighterRange": "ilcnc.vcnc.tighten"}
+
+
+def __getattr__(name: str) -> object:
+    where = _MOVED_NAMES.get(name)
+    if where is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    import warnings
+
+    warnings.warn(f"{__name__}.{name} moved to {where}.{name}; import it from there", DeprecationWarning,
+                  stacklevel=2)
+    return getattr(importlib.import_module(where), name)
