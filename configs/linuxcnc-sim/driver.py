@@ -84,6 +84,9 @@ def hal_int(name):
 
 # task's execution states in which it sends blocks as fast as it can (a low queue then is starvation)
 SENDING = (linuxcnc.EXEC_DONE, linuxcnc.EXEC_WAITING_FOR_MOTION_QUEUE)
+# ... and those in which it waits for motion to stop and then for a dwell: the restart after them is held
+STOPPING = (linuxcnc.EXEC_WAITING_FOR_MOTION, linuxcnc.EXEC_WAITING_FOR_MOTION_AND_IO,
+            linuxcnc.EXEC_WAITING_FOR_DELAY)
 
 
 def queue_low(trace, low=100, slack=20):
@@ -110,58 +113,65 @@ def queue_low(trace, low=100, slack=20):
 
 
 class Dwells:
-    """The dwell gate: a restart after a dwell starts with the queue filled, as the program's start does.
+    """The dwell gate: a restart after a stop starts with the queue filled, as the program's start does.
 
     Task runs a dwell (G4) in wall-clock time after motion has stopped, then
     sends the next blocks one per task cycle; motion starts on the first one.
     How many blocks the planner sees when it starts then depends on the time
-    scale (task's 1 ms is k servo cycles). While task waits out a dwell the
-    driver arms the gate (``ilcnc-dwell``): motion is held, and the servo
-    cycle the first block arrives the whole simulated world stops (drives and
-    sampler). Once the queue is filled the driver releases it and the world
-    goes on from the same state: the log shows the dwell, then a start with
-    full look-ahead, at any time scale.
+    scale (task's 1 ms is k servo cycles). The driver keeps the gate's request
+    (``ilcnc-dwell``) on from the start of motion: HAL arms the gate by itself
+    whenever motion comes to rest with an empty queue (a dwell, a queue-busting
+    block, the end), so no timing of the driver's can miss a stop. Once armed,
+    motion is held, and in the servo cycle the next block arrives the whole
+    simulated world stops (drives and sampler). The driver sees the world
+    frozen, waits until task has queued what it will queue, and releases it
+    (the request off for a moment, then on again): the world goes on from the
+    same state, and the log shows the dwell and then a start with full
+    look-ahead, at any time scale.
     """
 
     def __init__(self):
-        self.armed = False
-        self.seen = 0  # dwells the gate held
-        self.missed = 0  # dwells that ended before the gate was armed
+        self.on = False
+        self.stopped = False  # from task's first wait for motion to the restart: a low queue is no starvation
+        self.seen = 0  # restarts the gate held
+        self.missed = 0  # kept for the result's format: with the request always on, none can be missed
         self.held_wall_s = 0.0
-        self.t_arm = self.t_q = 0.0
+        self.t_hold = None
+        self.t_q = 0.0
         self.last_q = -1
 
-    def arm(self):
+    def start(self):
         halcmd("sets", "ilcnc-dwell", "1")
-        self.armed = True
-        self.t_arm = self.t_q = time.monotonic()
-        self.last_q = -1
+        self.on = True
 
-    def disarm(self):
-        if self.armed:
+    def stop(self):
+        if self.on:
             halcmd("sets", "ilcnc-dwell", "0")
-            self.armed = False
-            self.held_wall_s += time.monotonic() - self.t_arm
+            self.on = False
 
     def step(self, s, hold_queue):
-        if not self.armed:
-            if s.exec_state == linuxcnc.EXEC_WAITING_FOR_DELAY and s.queue == 0:
-                self.arm()
+        """One poll: if the world is frozen at a restart, release it once the queue is filled."""
+        if s.exec_state in STOPPING:
+            self.stopped = True  # task waits for motion (and then a dwell): the queue drains on purpose
+        if not self.on or s.queue == 0:
             return
-        if s.queue == 0:
-            if s.interp_state == linuxcnc.INTERP_IDLE and s.exec_state == linuxcnc.EXEC_DONE:
-                self.disarm()  # the program ended with the dwell
-            return
-        if halcmd("getp", "ilcnc.frozen.out") != "TRUE":
-            self.missed += 1  # the first block moved before the gate held it
-            self.disarm()
+        # held motion does not move; in motion the speed is zero only for an instant, so HAL is asked only then
+        if self.t_hold is None and (s.current_vel > 0.0 or halcmd("getp", "ilcnc.frozen.out") != "TRUE"):
+            if s.current_vel > 0.0 and s.exec_state not in STOPPING:
+                self.stopped = False
             return
         now = time.monotonic()
+        if self.t_hold is None:
+            self.t_hold, self.last_q, self.t_q = now, s.queue, now
         if s.queue != self.last_q:
             self.last_q, self.t_q = s.queue, now
         if s.queue >= hold_queue or now - self.t_q > 0.05:
+            halcmd("sets", "ilcnc-dwell", "0")  # resets the flip-flop: the world goes on in the next cycle
+            halcmd("sets", "ilcnc-dwell", "1")  # motion moves now: armed again only at the next stop
             self.seen += 1
-            self.disarm()
+            self.held_wall_s += now - self.t_hold
+            self.t_hold = None
+            self.stopped = False
 
     def report(self):
         return {"held": self.seen, "missed": self.missed, "held_wall_s": round(self.held_wall_s, 3)}
@@ -279,12 +289,13 @@ def main():
         halcmd("sets", "ilcnc-go", "1")
         t_release = time.monotonic()
         started = False
-        trace = []  # (queue depth, motion_line, interp_state, exec_state, dwell gate armed) per poll, for the starvation check
+        trace = []  # (queue depth, motion_line, interp_state, exec_state, stopped or held at a restart) per poll, for the starvation check
         dw = Dwells()
+        dw.start()
         while True:
             s.poll()
             dw.step(s, hold_queue)
-            trace.append((s.queue, s.motion_line, s.interp_state, s.exec_state, dw.armed))
+            trace.append((s.queue, s.motion_line, s.interp_state, s.exec_state, dw.stopped or dw.t_hold is not None))
             err = poll_errors()
             if err and not result["line"]:
                 result["line"] = s.read_line
@@ -306,7 +317,7 @@ def main():
             if time.monotonic() - t_run > timeout:
                 raise Stop("program still running after %s" % timeout_label)
             time.sleep(0.002)
-        dw.disarm()
+        dw.stop()
         result["dwells"] = dw.report()
         result["program_wall_s"] = round(time.monotonic() - t_run, 4)
         result["queue_low"] = queue_low(trace)
