@@ -43,10 +43,10 @@ the machine off); ``program_wall_s``: wall time from AUTO_RUN to done;
 ``phase``: where it stopped; ``queue_low``: null, or the queue depth and line
 at which the motion queue ran low while task still had blocks to send (the
 planner then saw less look-ahead than in a real-time run); ``dwells``:
-``{"held": n, "missed": n, "held_wall_s": s}``, the restarts after dwells the
-gate held until task had queued the next blocks, the dwells that were over
-before the driver saw them (their restart raced task, as without the gate),
-and the wall time the gate was armed.
+``{"held": n, "missed": n, "held_wall_s": s}``, the restarts after stops (a
+dwell, a queue-busting block) the gate held until task had queued the next
+blocks, the restarts it could not hold (0: the gate arms itself in HAL), and
+the wall time the driver held them.
 
 Exit code: 0 = program ran without errors, 1 = LinuxCNC reported an error
 (interpreter refused the program, following error, ...), 2 = the driver

@@ -146,10 +146,12 @@ class RunResult:
     messages : list of str
         Non-error texts LinuxCNC reported (operator messages, ``(MSG,...)``).
     dwells_held : int
-        Restarts after a dwell that the configuration's dwell gate held until task had queued the next
-        blocks (``configs/linuxcnc-sim/README.md``, "Dwell gate"; 0 for a configuration without one).
+        Restarts after a stop (a dwell, a queue-busting block) that the configuration's dwell gate held until
+        task had queued the next blocks (``configs/linuxcnc-sim/README.md``, "Dwell gate"; 0 for a configuration
+        without one).
     dwells_missed : int
-        Dwells that were over before the driver could arm the gate (their restart raced task).
+        Restarts the gate could not hold (their restart raced task); 0 with ``configs/linuxcnc-sim``, whose gate
+        arms itself.
     """
 
     program: Path
