@@ -112,6 +112,29 @@ def queue_low(trace, low=100, slack=20):
     return None
 
 
+class QueueFill:
+    """When task has queued what it will queue before motion starts (the rule of the start gate and the dwell gate).
+
+    ``hold_queue`` blocks (far more than the planner's look-ahead, 40 blocks in 2.9), or a queue that has not
+    grown for :attr:`QUIET_S` (all queued, or the interpreter waits for motion).
+    """
+
+    QUIET_S = 0.05
+
+    def __init__(self, hold_queue):
+        self.hold_queue = hold_queue
+        self.last_q = -1
+        self.t_q = time.monotonic()
+
+    def done(self, queue):
+        """Poll with the queue's depth now: True once it is filled."""
+        now = time.monotonic()
+        if queue != self.last_q:
+            self.last_q, self.t_q = queue, now
+            return queue >= self.hold_queue
+        return queue >= self.hold_queue or (queue > 0 and now - self.t_q > self.QUIET_S)
+
+
 class Dwells:
     """The dwell gate: a restart after a stop starts with the queue filled, as the program's start does.
 
@@ -137,8 +160,7 @@ class Dwells:
         self.missed = 0  # kept for the result's format: with the request always on, none can be missed
         self.held_wall_s = 0.0
         self.t_hold = None
-        self.t_q = 0.0
-        self.last_q = -1
+        self.fill = None
 
     def start(self):
         halcmd("sets", "ilcnc-dwell", "1")
@@ -160,16 +182,13 @@ class Dwells:
             if s.current_vel > 0.0 and s.exec_state not in STOPPING:
                 self.stopped = False
             return
-        now = time.monotonic()
         if self.t_hold is None:
-            self.t_hold, self.last_q, self.t_q = now, s.queue, now
-        if s.queue != self.last_q:
-            self.last_q, self.t_q = s.queue, now
-        if s.queue >= hold_queue or now - self.t_q > 0.05:
+            self.t_hold, self.fill = time.monotonic(), QueueFill(hold_queue)
+        if self.fill.done(s.queue):
             halcmd("sets", "ilcnc-dwell", "0")  # resets the flip-flop: the world goes on in the next cycle
             halcmd("sets", "ilcnc-dwell", "1")  # motion moves now: armed again only at the next stop
             self.seen += 1
-            self.held_wall_s += now - self.t_hold
+            self.held_wall_s += time.monotonic() - self.t_hold
             self.t_hold = None
             self.stopped = False
 
@@ -272,20 +291,13 @@ def main():
         c.auto(linuxcnc.AUTO_RUN, 0)
         # motion is held (feed-inhibit) until task has queued the first blocks
         hold_end = time.monotonic() + hold
-        last_q, t_q = -1, time.monotonic()
+        fill = QueueFill(hold_queue)
         while time.monotonic() < hold_end:
             s.poll()
-            if poll_errors():
+            if poll_errors() or fill.done(s.queue):
                 break
-            if s.queue >= hold_queue:
-                last_q = s.queue
-                break  # far more than the planner's look-ahead (40 blocks in 2.9)
-            if s.queue != last_q:
-                last_q, t_q = s.queue, time.monotonic()
-            elif s.queue > 0 and time.monotonic() - t_q > 0.05:
-                break  # queue stopped growing: all queued, or the interpreter waits for motion
             time.sleep(0.002)
-        say("release with %d queued" % last_q)
+        say("release with %d queued" % fill.last_q)
         halcmd("sets", "ilcnc-go", "1")
         t_release = time.monotonic()
         started = False

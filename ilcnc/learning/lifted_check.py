@@ -631,12 +631,12 @@ def _radii(mn: NDArray[np.float64], b: NDArray[np.float64], edge: NDArray[np.boo
 
 
 def _candidate(m: NDArray[np.float64], b: NDArray[np.float64], e0: NDArray[np.float64], e0n: float, gamma: float,
-               q: float | None, n_it: int, edge: NDArray[np.bool_] | None = None) -> LiftedCandidate:
-    """Norms, spectral radii and the predicted error ratios of one iteration matrix ``m``."""
+               q: float | None, n_it: int, edge: NDArray[np.bool_]) -> LiftedCandidate:
+    """Norms, spectral radii and the predicted error ratios of one iteration matrix ``m`` (``edge``: the rows of
+    :func:`_cut_edge_rows`)."""
     mb = m @ b
     nb = float(np.linalg.norm(mb, 2)) if b.shape[1] else 0.0
     nf = float(np.linalg.norm(m, 2))
-    edge = np.zeros(m.shape[0], dtype=bool) if edge is None else edge
     rho_n, rho_i = _radii(b.T @ mb, b, edge) if b.shape[1] else (0.0, 0.0)
     rho_f = float(np.max(np.abs(np.linalg.eigvals(m))))
     if e0n > 0:
